@@ -1,0 +1,11 @@
+"""gendr — a generalized differentiable mesh renderer (Petersen et al., CVPR 2022).
+
+The spec layer: distributions, T-conorms, cameras, the paper's grid and the :class:`Renderer` facade.
+It imports no array backend; backends are plug-ins found through the ``gendr.backends`` entry point.
+"""
+from .errors import (GendrError, UnknownNameError, ParameterError, ShapeError, DTypeError,
+                     InputValueError, BackendUnavailableError)
+from .distributions import Distribution, distribution, DISTRIBUTIONS
+from .tconorms import TConorm, tconorm, TCONORMS
+
+__version__ = "0.1.0"

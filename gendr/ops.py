@@ -1,0 +1,95 @@
+"""The array-ops namespace that spec formulas are written against.
+
+Every distribution and T-conorm formula in ``gendr`` is a plain Python function ``f(ops, x, ...)``
+that touches its arrays only through arithmetic operators (``+ - * / **``, unary ``-``, comparisons)
+and the functions of an *ops namespace*. A backend supplies one namespace for its array type
+(``gendr_torch.ops.TorchOps``, ...), so each formula exists once. :class:`NumpyOps` here evaluates
+the formulas in float64 NumPy for the spec layer itself (culling radii, tests, plots).
+
+Members every namespace provides (all elementwise, broadcasting like NumPy):
+
+=================  =========================================================================
+``exp log log1p expm1 sqrt sin cos tan atan tanh erf erfc lgamma abs``  the usual functions
+``softplus(x)``    ``log(1 + exp(x))`` without overflow
+``sigmoid(x)``     ``1 / (1 + exp(-x))`` without overflow
+``where(c, a, b)`` select; ``c`` is a boolean array; ``a``/``b`` arrays or Python floats
+``minimum maximum`` elementwise
+``clamp(x, lo, hi)`` elementwise, ``lo``/``hi`` Python floats or None
+``full_like(x, v)`` an array shaped like ``x`` filled with the Python float ``v``
+``pi inf``         Python floats
+``with_derivative(value, derivative, x)``  ``value(x)`` whose derivative w.r.t. ``x`` is
+                   ``derivative(x)``; the backend must not differentiate through ``value`` (used
+                   where ``value`` is an iterative series, e.g. the incomplete gamma function)
+=================  =========================================================================
+
+Formulas must stay differentiable under autograd: where a branch not taken can be inf/NaN, feed it a
+safe argument first (``x_safe = where(c, x, 1.0)``) so that its gradient is not NaN.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+_erf = np.frompyfunc(math.erf, 1, 1)
+_erfc = np.frompyfunc(math.erfc, 1, 1)
+_lgamma = np.frompyfunc(math.lgamma, 1, 1)
+
+
+def _f64(fn):
+    return lambda x: np.asarray(fn(np.asarray(x, dtype=np.float64)), dtype=np.float64)
+
+
+class NumpyOps:
+    """float64 NumPy implementation of the ops namespace (no autodiff)."""
+
+    pi = math.pi
+    inf = math.inf
+    exp = staticmethod(np.exp)
+    log = staticmethod(np.log)
+    log1p = staticmethod(np.log1p)
+    expm1 = staticmethod(np.expm1)
+    sqrt = staticmethod(np.sqrt)
+    sin = staticmethod(np.sin)
+    cos = staticmethod(np.cos)
+    tan = staticmethod(np.tan)
+    atan = staticmethod(np.arctan)
+    tanh = staticmethod(np.tanh)
+    abs = staticmethod(np.abs)
+    minimum = staticmethod(np.minimum)
+    maximum = staticmethod(np.maximum)
+    erf = staticmethod(_f64(_erf))
+    erfc = staticmethod(_f64(_erfc))
+    lgamma = staticmethod(_f64(_lgamma))
+
+    @staticmethod
+    def softplus(x):
+        return np.logaddexp(0.0, x)
+
+    @staticmethod
+    def sigmoid(x):
+        x = np.asarray(x, dtype=np.float64)
+        return np.exp(-np.logaddexp(0.0, -x))
+
+    @staticmethod
+    def where(c, a, b):
+        return np.where(c, a, b)
+
+    @staticmethod
+    def clamp(x, lo=None, hi=None):
+        return np.clip(x, lo, hi)
+
+    @staticmethod
+    def full_like(x, v):
+        return np.full_like(np.asarray(x, dtype=np.float64), v)
+
+    @staticmethod
+    def with_derivative(value, derivative, x):
+        return value(x)
+
+    @staticmethod
+    def asarray(x):
+        return np.asarray(x, dtype=np.float64)
+
+
+numpy_ops = NumpyOps()
