@@ -9,3 +9,6 @@ from .distributions import Distribution, distribution, DISTRIBUTIONS
 from .tconorms import TConorm, tconorm, TCONORMS
 
 __version__ = "0.1.0"
+from .cameras import Camera, PerspectiveCamera, OrthographicCamera, IntrinsicsCamera, Orbit, orbit_camera
+from .renderer import Renderer, RenderSettings, available_backends
+from .grid import Instance, paper_grid

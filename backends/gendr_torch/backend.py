@@ -1,0 +1,61 @@
+"""The torch backend object the :class:`gendr.Renderer` facade talks to."""
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from gendr.errors import DTypeError
+
+from . import raster
+from .ops import torch_ops
+
+_FLOATS = (torch.float32, torch.float64)
+
+
+class TorchBackend:
+    """Renders with PyTorch on the device of the inputs (or ``device=`` for NumPy inputs)."""
+
+    name = "torch"
+    ops = torch_ops
+
+    def __init__(self, device=None):
+        self.device = torch.device(device) if device is not None else None
+
+    def float_array(self, x, name, like=None):
+        if isinstance(x, torch.Tensor):
+            t = x
+        else:
+            a = np.asarray(x)
+            if a.dtype.kind not in "fiu":
+                raise DTypeError(f"{name} must be a float32 or float64 array, got dtype {a.dtype}")
+            if a.dtype.kind in "iu" or a.dtype == np.float16:
+                a = a.astype(np.float32)
+            t = torch.as_tensor(a, device=self.device)
+        if like is not None:
+            return t.to(dtype=like.dtype, device=like.device)
+        if t.dtype not in _FLOATS:
+            raise DTypeError(f"{name} must be float32 or float64, got {t.dtype}")
+        return t
+
+    def index_array(self, x, name):
+        t = x if isinstance(x, torch.Tensor) else torch.as_tensor(np.asarray(x), device=self.device)
+        if t.dtype.is_floating_point or t.dtype == torch.bool or t.dtype.is_complex:
+            raise DTypeError(f"{name} must be an integer array, got {t.dtype}")
+        return t.long()
+
+    def first_nonfinite(self, t):
+        bad = ~torch.isfinite(t)
+        if not bool(bad.any()):
+            return None
+        idx = tuple(int(i) for i in bad.nonzero()[0])
+        return idx, float(t[idx])
+
+    def index_range(self, t):
+        return int(t.min()), int(t.max())
+
+    def render(self, settings, verts, faces, camera, colors, per_face):
+        faces = faces.to(verts.device)
+        return raster.render(settings, camera, verts, faces, colors, per_face)
+
+    def to_numpy(self, image):
+        return image.detach().cpu().numpy()

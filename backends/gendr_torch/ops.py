@@ -1,0 +1,79 @@
+"""The ops namespace (see :mod:`gendr.ops`) for torch tensors: spec formulas run on it unchanged."""
+from __future__ import annotations
+
+import math
+
+import torch
+
+
+class _WithDerivative(torch.autograd.Function):
+    """value(x) evaluated without autograd; its derivative is derivative(x)."""
+
+    @staticmethod
+    def forward(ctx, x, value, derivative):
+        ctx.derivative = derivative
+        ctx.save_for_backward(x)
+        with torch.no_grad():
+            return value(x)
+
+    @staticmethod
+    def backward(ctx, grad):
+        (x,) = ctx.saved_tensors
+        with torch.no_grad():
+            return grad * ctx.derivative(x), None, None
+
+
+class TorchOps:
+    pi = math.pi
+    inf = math.inf
+    exp = staticmethod(torch.exp)
+    log = staticmethod(torch.log)
+    log1p = staticmethod(torch.log1p)
+    expm1 = staticmethod(torch.expm1)
+    sqrt = staticmethod(torch.sqrt)
+    sin = staticmethod(torch.sin)
+    cos = staticmethod(torch.cos)
+    tan = staticmethod(torch.tan)
+    atan = staticmethod(torch.atan)
+    tanh = staticmethod(torch.tanh)
+    erf = staticmethod(torch.erf)
+    erfc = staticmethod(torch.erfc)
+    lgamma = staticmethod(torch.lgamma)
+    abs = staticmethod(torch.abs)
+    sigmoid = staticmethod(torch.sigmoid)
+    softplus = staticmethod(torch.nn.functional.softplus)
+
+    @staticmethod
+    def minimum(a, b):
+        if not isinstance(b, torch.Tensor):
+            return torch.clamp(a, max=b)
+        if not isinstance(a, torch.Tensor):
+            return torch.clamp(b, max=a)
+        return torch.minimum(a, b)
+
+    @staticmethod
+    def maximum(a, b):
+        if not isinstance(b, torch.Tensor):
+            return torch.clamp(a, min=b)
+        if not isinstance(a, torch.Tensor):
+            return torch.clamp(b, min=a)
+        return torch.maximum(a, b)
+
+    @staticmethod
+    def where(c, a, b):
+        return torch.where(c, a, b)  # accepts Python scalars for a or b
+
+    @staticmethod
+    def clamp(x, lo=None, hi=None):
+        return torch.clamp(x, lo, hi)
+
+    @staticmethod
+    def full_like(x, v):
+        return torch.full_like(x, v)
+
+    @staticmethod
+    def with_derivative(value, derivative, x):
+        return _WithDerivative.apply(x, value, derivative)
+
+
+torch_ops = TorchOps()

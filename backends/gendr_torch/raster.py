@@ -1,0 +1,386 @@
+"""The PyTorch rasterizer: faces -> (pixel, face) pairs -> per-pixel aggregates (DESIGN.md §5).
+
+Never materialises B·H·W·F. Per face we build a screen-space bounding box grown by the culling
+distance of the distribution (coverage < eps beyond it), enumerate the pixels of each box directly,
+and process the pairs in row bands of at most ``max_pairs`` pairs. Each band is checkpointed when
+gradients are needed, so its per-pair intermediates exist only while that band is computed or
+recomputed (memory O(pixels + faces + max_pairs)). All per-pair math is plain autograd, so
+gradients are exact w.r.t. everything upstream (vertices, camera, τ, colours).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch.utils.checkpoint import checkpoint
+
+from gendr.cameras import VEC3
+from gendr.errors import ShapeError
+from gendr.tconorms import ARCHIMEDEAN, MAX
+
+from .ops import torch_ops as ops
+
+
+# ---------------------------------------------------------------------------------------------
+# camera parameters -> tensors
+# ---------------------------------------------------------------------------------------------
+def camera_tensors(camera, dtype, device):
+    """Convert the camera's array parameters; returns (P, batch) with P's arrays shaped [Bc, 1]."""
+    P, batch = {}, 1
+    for name, (value, kind) in camera.array_params().items():
+        t = value.to(device=device, dtype=dtype) if isinstance(value, torch.Tensor) else torch.as_tensor(value, dtype=dtype, device=device)
+        if kind == VEC3:
+            if t.shape == (3,):
+                t = t[None]
+            if t.ndim != 2 or t.shape[1] != 3:
+                raise ShapeError(f"camera parameter {name} must have shape [3] or [B, 3], got {list(t.shape)}")
+        else:
+            if t.ndim == 0:
+                t = t[None]
+            if t.ndim != 1:
+                raise ShapeError(f"camera parameter {name} must be a scalar or have shape [B], got {list(t.shape)}")
+        if not bool(torch.isfinite(t).all()):
+            raise ShapeError(f"camera parameter {name} must be finite, got {t.detach().cpu().tolist()}")
+        n = t.shape[0]
+        if n != 1:
+            if batch not in (1, n):
+                raise ShapeError(f"camera parameter {name} has batch size {n}, others have {batch}")
+            batch = n
+        P[name] = tuple(t[:, k, None] for k in range(3)) if kind == VEC3 else t[:, None]
+    return P, batch
+
+
+# ---------------------------------------------------------------------------------------------
+# per-face preparation (O(B·F), ordinary autograd)
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class Faces:
+    """Screen-space face data, flattened over (batch, face) = B·F rows."""
+
+    B: int
+    F: int
+    K: int  # polygon corners (3, or 4 when some face is clipped by the near plane)
+    geom: torch.Tensor  # [8K, B·F]: per edge Px, Py, Ex, Ey, 1/|E|², nx, ny, c
+    box: torch.Tensor  # [4, B·F] float: Xmin, Xmax, Ymin, Ymax of the polygon (screen units)
+    valid: torch.Tensor  # [B·F] bool: some part in front of the near plane
+    front: torch.Tensor  # [B·F] bool: counter-clockwise on screen
+    shade: torch.Tensor | None  # [21, B·F]: barycentric affine coeffs (9), view depths (3), colours (9)
+    near: float
+    far: float
+
+
+def _screen(camera, P, H, W, xv, yv, zv):
+    sx, sy, ox, oy = camera.ndc_affine(ops, P, H, W)
+    if camera.orthographic:
+        nx, ny = sx * xv + ox, sy * yv + oy
+    else:
+        nx, ny = sx * xv / -zv + ox, sy * yv / -zv + oy
+    return nx * (W / H), ny
+
+
+def _expand_b(t, B):
+    return t.expand(B, *t.shape[1:]) if t.shape[0] != B else t
+
+
+def prepare_faces(settings, camera, verts, faces, colors, per_face) -> Faces:
+    H, W = settings.image_size
+    dtype, device = verts.dtype, verts.device
+    P, Bc = camera_tensors(camera, dtype, device)
+    if verts.ndim == 2:
+        verts = verts[None]
+    Bv = verts.shape[0]
+    if Bv != 1 and Bc != 1 and Bv != Bc:
+        raise ShapeError(f"vertex batch size {Bv} and camera batch size {Bc} do not match")
+    B, F = max(Bv, Bc), faces.shape[0]
+    x, y, z = verts.unbind(-1)
+    xv, yv, zv = camera.view_coords(ops, P, x, y, z)  # [B, V]
+    xv, yv, zv = (_expand_b(t, B) for t in (xv, yv, zv))
+    tri = torch.stack([xv, yv, zv], -1)[:, faces]  # [B, F, 3 corners, 3 xyz]
+
+    # --- near-plane clipping (Sutherland–Hodgman against z = -near; at most 4 corners) ---
+    near = camera.near
+    inside = tri[..., 2] <= -near
+    if bool(inside.all()):
+        poly, valid, K = tri, torch.ones(B, F, dtype=torch.bool, device=device), 3
+    else:
+        nxt, in_n = tri.roll(-1, 2), inside.roll(-1, 2)
+        dz = nxt[..., 2] - tri[..., 2]
+        cross = inside ^ in_n
+        t = (-near - tri[..., 2]) / torch.where(cross, dz, torch.ones_like(dz))
+        inter = tri + torch.where(cross, t, torch.zeros_like(t))[..., None] * (nxt - tri)
+        cand = torch.stack([tri, inter], 3).reshape(B, F, 6, 3)
+        cvalid = torch.stack([inside, cross], 3).reshape(B, F, 6)
+        count = cvalid.sum(-1)
+        pos = cvalid.cumsum(-1) - 1
+        slots = []
+        for s in range(4):
+            target = torch.clamp(count - 1, max=s)
+            sel = cvalid & (pos == target[..., None])
+            slots.append(sel.to(torch.int8).argmax(-1))
+        idx = torch.stack(slots, -1)  # [B, F, 4]
+        poly = torch.gather(cand, 2, idx[..., None].expand(B, F, 4, 3))
+        valid, K = count > 0, 4
+        # keep invalid faces' corners finite (they are never enumerated)
+        poly = torch.where(valid[..., None, None], poly, torch.full_like(poly, -1.0))
+    X, Y = _screen(camera, P, H, W, *poly.unbind(-1))  # [B, F, K]
+
+    # --- per-edge data for distances and the inside test ---
+    Ex, Ey = X.roll(-1, 2) - X, Y.roll(-1, 2) - Y
+    len2 = Ex * Ex + Ey * Ey
+    nonzero = len2 > 0
+    len2_safe = torch.where(nonzero, len2, torch.ones_like(len2))
+    inv_len2 = torch.where(nonzero, 1.0 / len2_safe, torch.zeros_like(len2))
+    area2 = (X * Y.roll(-1, 2) - X.roll(-1, 2) * Y).sum(-1)  # twice the signed area, [B, F]
+    orient = torch.sign(area2).detach()
+    inv_len = torch.where(nonzero, torch.rsqrt(len2_safe), torch.zeros_like(len2)) * orient[..., None]
+    nx, ny = -Ey * inv_len, Ex * inv_len  # inward unit normals (0 for zero-length edges)
+    # offset: +big for zero-length edges (never the nearest line, never fails the inside test),
+    # -1 for zero-area faces (nothing is inside them)
+    big = torch.finfo(dtype).max / 4
+    c = torch.where(nonzero, torch.zeros_like(len2), torch.full_like(len2, big))
+    c = torch.where((orient == 0)[..., None], torch.full_like(c, -1.0), c)
+    geom = torch.stack([X, Y, Ex, Ey, inv_len2, nx, ny, c], 0)  # [8, B, F, K]
+    geom = geom.permute(3, 0, 1, 2).reshape(8 * K, B * F)  # rows (edge k, field)
+    with torch.no_grad():
+        box = torch.stack([X.amin(-1), X.amax(-1), Y.amin(-1), Y.amax(-1)], 0).reshape(4, B * F)
+
+    shade = None
+    if settings.blend is not None:
+        shade = _shading_data(settings, camera, P, H, W, verts, faces, tri, colors, per_face, B)
+    return Faces(B, F, K, geom, box, valid.reshape(-1), (orient > 0).reshape(-1), shade, camera.near, camera.far)
+
+
+def _shading_data(settings, camera, P, H, W, verts, faces, tri, colors, per_face, B):
+    """Barycentric coefficients (affine in screen X, Y), view depths and lit corner colours."""
+    sx, sy, ox, oy = camera.ndc_affine(ops, P, H, W)
+    sx, sy, ox, oy = (torch.as_tensor(v, dtype=tri.dtype, device=tri.device) for v in (sx, sy, ox, oy))
+    sx, sy, ox, oy = (v.reshape(-1, 1, 1) for v in (sx, sy, ox, oy))  # [Bc|1, 1, 1]
+    v = tri  # [B, F, 3, 3]
+    vj, vk = v.roll(-1, 2), v.roll(-2, 2)  # corners j = i+1, k = i+2
+    ar = H / W  # x_ndc = X * ar
+    if camera.orthographic:
+        # u_i = (vj - o) x (vk - o) in the view xy-plane, o = ((x_ndc - ox)/sx, (y_ndc - oy)/sy)
+        cz = vj[..., 0] * vk[..., 1] - vj[..., 1] * vk[..., 0]
+        Dx, Dy = vj[..., 0] - vk[..., 0], vj[..., 1] - vk[..., 1]
+        a = Dy * ar / sx
+        b = -Dx / sy
+        c0 = cz - Dy * ox / sx + Dx * oy / sy
+    else:
+        # u_i = r · (vj × vk), r = ((x_ndc - ox)/sx, (y_ndc - oy)/sy, -1)
+        C = torch.linalg.cross(vj, vk, dim=-1)
+        a = C[..., 0] * ar / sx
+        b = C[..., 1] / sy
+        c0 = -C[..., 0] * ox / sx - C[..., 1] * oy / sy - C[..., 2]
+    depth = -v[..., 2]  # positive view depth per corner [B, F, 3]
+
+    # --- colours: albedo per corner, Lambert-lit with vertex (smooth) or face (flat) normals ---
+    if verts.shape[0] != B:
+        verts = verts.expand(B, -1, -1)
+    wtri = verts[:, faces]  # world corners [B, F, 3, 3]
+    fn = torch.linalg.cross(wtri[:, :, 1] - wtri[:, :, 0], wtri[:, :, 2] - wtri[:, :, 0], dim=-1)  # area-weighted
+    if colors is None:
+        albedo = torch.ones_like(wtri)
+        per_face = False
+    else:
+        albedo = colors if colors.ndim == 3 else colors[None]
+        albedo = albedo.expand(B, -1, -1)
+        albedo = albedo[:, :, None, :].expand(B, -1, 3, 3) if per_face else albedo[:, faces]
+    if per_face:
+        normals = fn[:, :, None, :].expand(B, -1, 3, 3)
+    else:
+        vn = torch.zeros_like(verts).index_add(1, faces.reshape(-1), fn[:, :, None, :].expand(B, -1, 3, 3).reshape(B, -1, 3))
+        normals = vn[:, faces]
+    normals = normals / torch.clamp(torch.linalg.vector_norm(normals, dim=-1, keepdim=True), min=1e-30)
+    light = torch.as_tensor(settings.light_direction, dtype=verts.dtype, device=verts.device)
+    light = light / torch.linalg.vector_norm(light)
+    lambert = torch.clamp((normals * -light).sum(-1, keepdim=True), min=0.0)
+    color = albedo * (settings.ambient + settings.diffuse * lambert)  # [B, F, 3 corners, 3 rgb]
+    shade = torch.cat([a, b, c0, depth, color.reshape(B, -1, 9)], -1)  # [B, F, 21]
+    return shade.reshape(B * tri.shape[1], 21).t()
+
+
+# ---------------------------------------------------------------------------------------------
+# pair enumeration
+# ---------------------------------------------------------------------------------------------
+def pixel_ranges(fc: Faces, H: int, W: int, radius: float):
+    """Inclusive pixel row/column ranges of each face's grown box, clipped to the image ([B·F] int64).
+    Empty ranges (or invalid faces) have i1 < i0."""
+    X0, X1, Y0, Y1 = fc.box
+    r = radius * (1 + 1e-6) + 1e-6 if math.isfinite(radius) else 4.0 * (1 + W / H)
+    # pixel j has X = (2j + 1 - W)/H ; pixel i has Y = 1 - (2i + 1)/H
+    j0 = torch.ceil((X0 - r) * (H / 2) + (W - 1) / 2)
+    j1 = torch.floor((X1 + r) * (H / 2) + (W - 1) / 2)
+    i0 = torch.ceil((H * (1 - (Y1 + r)) - 1) / 2)
+    i1 = torch.floor((H * (1 - (Y0 - r)) - 1) / 2)
+    j0, i0 = (torch.clamp(t, 0, n).long() for t, n in ((j0, W), (i0, H)))
+    j1, i1 = (torch.clamp(t, -1, n - 1).long() for t, n in ((j1, W), (i1, H)))
+    i1 = torch.where(fc.valid, i1, i0 - 1)
+    return i0, i1, j0, torch.maximum(j1, j0 - 1)
+
+
+def row_bands(i0, i1, widths, H: int, max_pairs: int):
+    """Split rows [0, H) into consecutive bands of at most ~max_pairs pairs each."""
+    n = (i1 - i0 + 1).clamp(min=0)
+    w = torch.where(n > 0, widths, torch.zeros_like(widths))
+    diff = torch.zeros(H + 1, dtype=torch.int64, device=i0.device)
+    diff.index_add_(0, i0.clamp(max=H), w)
+    diff.index_add_(0, (i1 + 1).clamp(min=0, max=H), -w)
+    per_row = diff[:H].cumsum(0).cpu().tolist()
+    bands, start, acc = [], 0, 0
+    for r, c in enumerate(per_row):
+        if acc and acc + c > max_pairs:
+            bands.append((start, r))
+            start, acc = r, 0
+        acc += c
+    bands.append((start, H))
+    return bands
+
+
+def enumerate_pairs(i0, i1, j0, j1, r0: int, r1: int):
+    """(face, row, col) of every pixel of every face box within rows [r0, r1)."""
+    a, b = i0.clamp(min=r0), i1.clamp(max=r1 - 1)
+    h = (b - a + 1).clamp(min=0)
+    w = (j1 - j0 + 1).clamp(min=0)
+    counts = h * w
+    face = torch.repeat_interleave(torch.arange(counts.numel(), device=counts.device), counts)
+    if face.numel() == 0:
+        return face, face, face
+    start = counts.cumsum(0) - counts
+    local = torch.arange(face.numel(), device=face.device) - start[face]
+    wf = w[face]
+    return face, a[face] + local // wf, j0[face] + local % wf
+
+
+# ---------------------------------------------------------------------------------------------
+# per-pair evaluation of one band
+# ---------------------------------------------------------------------------------------------
+def signed_distance(geom_pairs, K, px, py):
+    """Signed distance (inside > 0) of pixel centres to their face polygons, [N]."""
+    d2 = emin = None
+    for k in range(K):
+        Px, Py, Ex, Ey, il, nx, ny, c = geom_pairs[8 * k: 8 * k + 8]
+        dx, dy = px - Px, py - Py
+        t = torch.clamp((dx * Ex + dy * Ey) * il, 0.0, 1.0)
+        qx, qy = dx - t * Ex, dy - t * Ey
+        dk = qx * qx + qy * qy
+        ek = dx * nx + dy * ny + c
+        d2 = dk if d2 is None else torch.minimum(d2, dk)
+        emin = ek if emin is None else torch.minimum(emin, ek)
+    inside = emin >= 0
+    tiny = torch.finfo(px.dtype).tiny
+    outside = -torch.sqrt(torch.where(inside, torch.ones_like(d2), torch.clamp(d2, min=tiny)))
+    # inside a convex polygon the distance to the boundary is the distance to the nearest edge line
+    return torch.where(inside, emin, outside), inside
+
+
+def render_band(settings, fc: Faces, geom, shade, tau, i0, i1, j0, j1, r0, r1):
+    """RGBA of rows [r0, r1) for all batch elements: [B, r1 - r0, W, 4]."""
+    H, W = settings.image_size
+    dist, tcn, eps = settings.distribution, settings.tconorm, settings.eps
+    rows = r1 - r0
+    npix = fc.B * rows * W
+    dtype, device = geom.dtype, geom.device
+    face, row, col = enumerate_pairs(i0, i1, j0, j1, r0, r1)
+    batch = face // fc.F
+    pix = (batch * rows + (row - r0)) * W + col
+    px = (2 * col + 1 - W).to(dtype) / H
+    py = 1 - (2 * row + 1).to(dtype) / H
+
+    d, inside = signed_distance(geom.index_select(1, face), fc.K, px, py)
+    x = dist.argument(ops, d, tau)
+    p = dist.cdf(ops, x)
+    keep = p >= eps if eps > 0 else None
+
+    zeros = torch.zeros(npix, dtype=dtype, device=device)
+    if tcn.kind == ARCHIMEDEAN:
+        log1m = dist.log_sf(ops, x)
+        sat = ~torch.isfinite(log1m)
+        ps, ls = torch.where(sat, 0.5, p), torch.where(sat, math.log(0.5), log1m)
+        g = tcn.generator(ops, ps, ls)
+        over = ~torch.isfinite(g)  # the generator overflowed: saturated as well
+        if bool(over.any()):
+            sat = sat | over
+            g = tcn.generator(ops, torch.where(sat, 0.5, p), torch.where(sat, math.log(0.5), log1m))
+        if keep is not None:
+            sat = sat & keep
+            g = torch.where(keep & ~sat, g, 0.0)
+        else:
+            g = torch.where(sat, 0.0, g)
+        S = zeros.index_add(0, pix, g)
+        nsat = torch.zeros(npix, dtype=torch.int32, device=device).index_add_(0, pix, sat.to(torch.int32))
+        pos = S > 0
+        A = torch.where(pos, tcn.from_generator_sum(ops, torch.where(pos, S, 1.0)), 0.0)
+        A = torch.where(nsat > 0, 1.0, A)
+    else:
+        pm = torch.where(keep, p, 0.0) if keep is not None else p
+        A = zeros.scatter_reduce(0, pix, pm, "amax", include_self=True)
+        if tcn.kind != MAX:  # the hard logical "or": covered where some face has p >= 1/2
+            A = (A >= 0.5).to(dtype).detach()
+
+    if shade is None:
+        rgb = zeros.new_zeros(npix, 3)
+    else:
+        rgb = _blend(settings, fc, shade.index_select(1, face), pix, npix, px, py, p, keep, inside, face)
+    return torch.cat([rgb, A[:, None]], 1).reshape(fc.B, rows, W, 4)
+
+
+def _blend(settings, fc, sh, pix, npix, px, py, p, keep, inside, face):
+    dtype, device = px.dtype, px.device
+    u = [sh[i] * px + sh[3 + i] * py + sh[6 + i] for i in range(3)]
+    s = u[0] + u[1] + u[2]
+    s = torch.where(s.abs() > torch.finfo(dtype).tiny, s, torch.ones_like(s))
+    b = [torch.clamp(ui / s, min=0.0) for ui in u]
+    bs = b[0] + b[1] + b[2]
+    b = [bi / bs for bi in b]
+    depth = b[0] * sh[9] + b[1] * sh[10] + b[2] * sh[11]
+    col = torch.stack([b[0] * sh[12 + c] + b[1] * sh[15 + c] + b[2] * sh[18 + c] for c in range(3)], 1)
+    use = keep if keep is not None else torch.ones_like(inside)
+    if settings.cull_backfaces:
+        use = use & fc.front[face]
+    bg = torch.as_tensor(settings.background, dtype=dtype, device=device)
+    if settings.blend == "hard":
+        use = use & inside
+        key = torch.where(use, depth.detach(), torch.full_like(depth, math.inf))
+        dmin = torch.full((npix,), math.inf, dtype=dtype, device=device).scatter_reduce(0, pix, key, "amin")
+        win = use & (key == dmin[pix])
+        order = torch.where(win, torch.arange(pix.numel(), device=device), -1)
+        first = torch.full((npix,), -1, dtype=torch.long, device=device).scatter_reduce(0, pix, order, "amax")
+        win = win & (order == first[pix])
+        out = torch.zeros(npix, 3, dtype=dtype, device=device).index_add(0, pix[win], col[win])
+        covered = torch.zeros(npix, dtype=torch.bool, device=device)
+        covered[pix[win]] = True
+        return torch.where(covered[:, None], out, bg)
+    # softmax over depth (SoftRas): weights p·exp(z̃/γ), background exp(ε/γ)
+    zt = (fc.far - depth) / (fc.far - fc.near)
+    gamma, beps = settings.gamma, settings.background_eps
+    key = torch.where(use & (p > 0), zt.detach(), torch.full_like(zt, -math.inf))
+    m = torch.full((npix,), beps, dtype=dtype, device=device).scatter_reduce(0, pix, key, "amax")
+    w = torch.where(use, p * torch.exp((zt - m[pix]) / gamma), 0.0)
+    num = torch.zeros(npix, 3, dtype=dtype, device=device).index_add(0, pix, w[:, None] * col)
+    wb = torch.exp((beps - m) / gamma)
+    den = torch.zeros(npix, dtype=dtype, device=device).index_add(0, pix, w) + wb
+    return (num + wb[:, None] * bg) / den[:, None]
+
+
+def render(settings, camera, verts, faces, colors, per_face):
+    H, W = settings.image_size
+    fc = prepare_faces(settings, camera, verts, faces, colors, per_face)
+    tau = settings.tau
+    tau = tau.to(verts.dtype) if isinstance(tau, torch.Tensor) else torch.tensor(float(tau), dtype=verts.dtype, device=verts.device)
+    radius = settings.distribution.culling_distance(settings.eps, settings.tau_value)
+    with torch.no_grad():
+        i0, i1, j0, j1 = pixel_ranges(fc, H, W, radius)
+        bands = row_bands(i0, i1, j1 - j0 + 1, H, settings.max_pairs)
+    needs_grad = torch.is_grad_enabled() and any(
+        t is not None and t.requires_grad for t in (fc.geom, fc.shade, tau))
+    shade = fc.shade if fc.shade is not None else fc.geom.new_zeros(0)
+    out = []
+    for r0, r1 in bands:
+        def band(geom, shade_, tau_, r0=r0, r1=r1):
+            return render_band(settings, fc, geom, shade_ if fc.shade is not None else None, tau_, i0, i1, j0, j1, r0, r1)
+        if needs_grad and len(bands) > 1:
+            out.append(checkpoint(band, fc.geom, shade, tau, use_reentrant=False, preserve_rng_state=False))
+        else:
+            out.append(band(fc.geom, shade, tau))
+    return torch.cat(out, 1) if len(out) > 1 else out[0]

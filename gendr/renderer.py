@@ -1,0 +1,223 @@
+"""The :class:`Renderer` facade: validated settings + a backend plug-in that does the work."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from functools import lru_cache
+from importlib import metadata
+from typing import Any
+
+from .cameras import Camera
+from .distributions import Distribution, distribution as make_distribution
+from .errors import (BackendUnavailableError, DTypeError, InputValueError, ParameterError,
+                     ShapeError, UnknownNameError)
+from .tconorms import TConorm, tconorm as make_tconorm
+
+BLENDS = ("softmax", "hard", None)
+ENTRY_POINT_GROUP = "gendr.backends"
+
+
+@dataclass(frozen=True, eq=False)
+class RenderSettings:
+    """Everything that defines an image besides the mesh and the camera (validated, frozen).
+
+    distances are in screen units of 2/H pixel widths... i.e. one unit = H/2 pixels (DESIGN.md §3).
+    """
+
+    distribution: Distribution
+    tconorm: TConorm
+    tau: Any  # float > 0, or a 0-d backend tensor (may require grad)
+    image_size: tuple[int, int]
+    eps: float
+    blend: str | None
+    gamma: float
+    background_eps: float
+    background: tuple[float, float, float]
+    ambient: float
+    diffuse: float
+    light_direction: tuple[float, float, float]
+    cull_backfaces: bool
+    max_pairs: int
+
+    @property
+    def tau_value(self) -> float:
+        return float(self.tau)
+
+
+def _number(owner, name, value, *, positive=False, nonneg=False, integer=False):
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or (integer and not isinstance(value, int)):
+        kind = "an integer" if integer else "a number"
+        raise ParameterError(f"{owner} parameter {name}={value!r} must be {kind}")
+    if not math.isfinite(value) or (positive and value <= 0) or (nonneg and value < 0):
+        want = "> 0" if positive else (">= 0" if nonneg else "finite")
+        raise ParameterError(f"{owner} parameter {name}={value!r} is out of domain: expected {want}")
+    return value
+
+
+def _triple(owner, name, value):
+    try:
+        t = tuple(float(v) for v in value)
+    except TypeError:
+        t = ()
+    if len(t) != 3 or not all(math.isfinite(v) for v in t):
+        raise ParameterError(f"{owner} parameter {name}={value!r} must be 3 finite numbers")
+    return t
+
+
+def _check_tau(tau):
+    if isinstance(tau, bool):
+        raise ParameterError(f"Renderer parameter tau={tau!r} must be a number > 0")
+    shape = getattr(tau, "shape", ())
+    if tuple(shape) not in ((), (1,)):
+        raise ShapeError(f"Renderer parameter tau must be a scalar, got shape {tuple(shape)}")
+    try:
+        v = float(tau)
+    except (TypeError, ValueError):
+        raise ParameterError(f"Renderer parameter tau={tau!r} must be a number > 0") from None
+    if not (math.isfinite(v) and v > 0):
+        raise ParameterError(f"Renderer parameter tau={tau!r} is out of domain: expected finite and > 0")
+
+
+@lru_cache(maxsize=None)
+def available_backends() -> dict[str, metadata.EntryPoint]:
+    """Backends registered under the ``gendr.backends`` entry-point group (name -> entry point)."""
+    return {ep.name: ep for ep in metadata.entry_points(group=ENTRY_POINT_GROUP)}
+
+
+def load_backend(name: str, **options):
+    eps = available_backends()
+    if name not in eps:
+        raise UnknownNameError("backend", name, sorted(eps))
+    try:
+        cls = eps[name].load()
+    except ImportError as exc:
+        raise BackendUnavailableError(
+            f"backend {name!r} is registered but cannot be imported ({exc}); install its extra, "
+            f"e.g. `pip install gendr[{name}]`") from exc
+    return cls(**options)
+
+
+class Renderer:
+    """A differentiable mesh renderer: soft coverage p = F(d/τ) per face, aggregated by a T-conorm.
+
+    Parameters
+    ----------
+    distribution : str or Distribution
+        e.g. ``"logistic"`` or ``gendr.distribution("gamma", shape=0.5, reversed=True)``.
+    tconorm : str or TConorm
+        e.g. ``"probabilistic"`` or ``gendr.tconorm("yager", p=2)``.
+    tau : float > 0 or 0-d tensor
+        scale of the distribution, in screen units (1 unit = H/2 pixels; for ``squared``
+        distributions in squared units). A tensor that requires grad gets a gradient.
+    image_size : (H, W) or int
+    backend : str
+        a registered backend (``gendr.available_backends()``), default ``"torch"``.
+    eps : float >= 0
+        coverage culling threshold: a face contributes nothing to a pixel where its coverage is
+        below ``eps``. ``eps=0`` disables culling (exact dense result). Heavy-tailed distributions
+        (cauchy, reciprocal, levy reversed) have coverage >= eps far away from every face, so each
+        face reaches most of the image: expect O(H·W·F) work (memory stays bounded by chunking).
+    blend : "softmax", "hard" or None
+        RGB: SoftRas' softmax over depth, the colour of the nearest covering face (z-buffer), or
+        None for a silhouette only (RGB channels 0; fastest).
+    gamma, background_eps : floats > 0
+        softmax blend temperature γ and background weight exp(ε/γ) (DESIGN.md §3).
+    background : 3 floats, RGB where no face is.
+    ambient, diffuse, light_direction : Lambert shading; ``light_direction`` is the direction the
+        light travels, in world space. Colour = albedo·(ambient + diffuse·max(0, n·(−l))).
+    cull_backfaces : bool
+        drop faces whose projection is clockwise from the RGB blend (the silhouette always counts
+        every face).
+    max_pairs : int
+        budget of (pixel, face) pairs processed at once; larger scenes are processed in row bands
+        (memory stays O(pixels + faces + max_pairs)).
+    backend_options : passed to the backend (e.g. ``device="cuda"``).
+    """
+
+    def __init__(self, distribution="logistic", tconorm="probabilistic", tau=0.01, image_size=(256, 256),
+                 backend="torch", eps=1e-4, *, blend="softmax", gamma=1e-4, background_eps=1e-3,
+                 background=(0.0, 0.0, 0.0), ambient=0.5, diffuse=0.5, light_direction=(0.0, 0.0, -1.0),
+                 cull_backfaces=False, max_pairs=4_000_000, **backend_options):
+        dist = make_distribution(distribution)
+        tcn = make_tconorm(tconorm)
+        _check_tau(tau)
+        if isinstance(image_size, int) and not isinstance(image_size, bool):
+            image_size = (image_size, image_size)
+        try:
+            H, W = image_size
+        except (TypeError, ValueError):
+            raise ParameterError(f"Renderer parameter image_size={image_size!r} must be (H, W) or an int") from None
+        for n, v in (("image height", H), ("image width", W)):
+            _number("Renderer", n, v, positive=True, integer=True)
+        _number("Renderer", "eps", eps, nonneg=True)
+        if eps >= 1:
+            raise ParameterError(f"Renderer parameter eps={eps!r} is out of domain: expected 0 <= eps < 1")
+        if blend not in BLENDS:
+            raise ParameterError(f"Renderer parameter blend={blend!r} must be one of {BLENDS}")
+        _number("Renderer", "gamma", gamma, positive=True)
+        _number("Renderer", "background_eps", background_eps, nonneg=True)
+        _number("Renderer", "ambient", ambient, nonneg=True)
+        _number("Renderer", "diffuse", diffuse, nonneg=True)
+        _number("Renderer", "max_pairs", max_pairs, positive=True, integer=True)
+        light = _triple("Renderer", "light_direction", light_direction)
+        if not any(light):
+            raise ParameterError("Renderer parameter light_direction must not be the zero vector")
+        self.settings = RenderSettings(
+            dist, tcn, tau, (H, W), float(eps), blend, float(gamma), float(background_eps),
+            _triple("Renderer", "background", background), float(ambient), float(diffuse), light,
+            bool(cull_backfaces), int(max_pairs))
+        self.backend = load_backend(backend, **backend_options)
+
+    def __repr__(self):
+        s = self.settings
+        return (f"Renderer({s.distribution.label()}, {s.tconorm.label()}, tau={s.tau_value:g}, "
+                f"image_size={s.image_size}, backend={self.backend.name!r}, eps={s.eps:g}, blend={s.blend!r})")
+
+    def render(self, vertices, faces, camera: Camera, *, vertex_colors=None, face_colors=None):
+        """Render a batch of meshes sharing one topology.
+
+        vertices : [B, V, 3] or [V, 3] float32/float64, world units (backend array, or NumPy).
+        faces : [F, 3] integer indices into V.
+        camera : a :class:`~gendr.cameras.Camera`; batched parameters give one camera per batch
+            element (B is the broadcast of the vertex and camera batch sizes).
+        vertex_colors : [B, V, 3] or [V, 3], or face_colors : [B, F, 3] or [F, 3] (albedo in
+            [0, 1]; default white). Not both.
+
+        Returns [B, H, W, 4] in the vertices' dtype: RGB, then alpha (the aggregated coverage).
+        """
+        if not isinstance(camera, Camera):
+            raise ParameterError(f"camera must be a gendr camera (PerspectiveCamera, ...), got {type(camera).__name__}")
+        if vertex_colors is not None and face_colors is not None:
+            raise ParameterError("give vertex_colors or face_colors, not both")
+        be = self.backend
+        verts = be.float_array(vertices, "vertices")
+        faces_a = be.index_array(faces, "faces")
+        vshape = tuple(verts.shape)
+        if len(vshape) not in (2, 3) or vshape[-1] != 3 or vshape[-2] < 1:
+            raise ShapeError(f"vertices must have shape [B, V, 3] or [V, 3], got {list(vshape)}")
+        if len(faces_a.shape) != 2 or faces_a.shape[1] != 3:
+            raise ShapeError(f"faces must have shape [F, 3], got {list(faces_a.shape)}")
+        V = vshape[-2]
+        bad = be.first_nonfinite(verts)
+        if bad is not None:
+            raise InputValueError(f"vertices must be finite; vertices{list(bad[0])} = {bad[1]}")
+        if faces_a.shape[0] > 0:
+            lo, hi = be.index_range(faces_a)
+            if lo < 0 or hi >= V:
+                raise InputValueError(f"face indices must lie in [0, {V - 1}] (V = {V}), got range [{lo}, {hi}]")
+        colors, per_face = None, False
+        for name, value, n in (("vertex_colors", vertex_colors, V), ("face_colors", face_colors, faces_a.shape[0])):
+            if value is None:
+                continue
+            c = be.float_array(value, name, like=verts)
+            if len(c.shape) not in (2, 3) or c.shape[-1] != 3 or c.shape[-2] != n:
+                raise ShapeError(f"{name} must have shape [B, {n}, 3] or [{n}, 3], got {list(c.shape)}")
+            bad = be.first_nonfinite(c)
+            if bad is not None:
+                raise InputValueError(f"{name} must be finite; {name}{list(bad[0])} = {bad[1]}")
+            colors, per_face = c, name == "face_colors"
+        return be.render(self.settings, verts, faces_a, camera, colors, per_face)
+
+    def to_numpy(self, image):
+        """The backend's image as a NumPy array (detached)."""
+        return self.backend.to_numpy(image)
