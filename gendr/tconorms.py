@@ -11,6 +11,29 @@ formula; tests check that the generator form reproduces it.
 
 Generators take ``(ops, x, log1m_x, **params)`` where ``log1m_x`` = log(1 − x) supplied accurately by
 the distribution (−log(1 − p) loses everything in float32 as p → 1).
+
+Numerical contract of the archimedean entries (float32 and float64, NumPy and torch autograd):
+
+* ``generator`` is accurate to a few ulp relative over all of [0, 1], near 0 (no log(1 − x) of a tiny
+  x) and near 1 (it reads ``log1m_x``, never 1 − x, where 1 − x matters; ``x`` and ``log1m_x`` must
+  describe the same value, and gradients flow through whichever one a branch reads). Where its value
+  is +inf (x = 1, i.e. ``log1m_x`` = −inf, or an overflow) it returns +inf with a *zero* (or finite)
+  gradient rather than an inf/NaN one, so that autograd through ``g⁻¹(Σ g)`` of a saturated pixel
+  gives 0, not 0·∞ = NaN. (If the caller computes ``log1m_x`` as ``log1p(−x)`` under autograd, x = 1
+  itself still yields log1p's −∞ derivative: supply it from the distribution, e.g. ``−softplus``.)
+* ``generator_inverse`` accepts any 0 <= s <= g(1), including huge s and s = +inf (→ 1 with zero
+  gradient), without overflow or NaN.
+* Where the true one-sided derivative at x = 0 (or s = 0) is +inf (x^p with p < 1: yager p < 1,
+  dombi p < 1, aczel_alsina p < 1; the inverses of yager, aczel_alsina and dombi with p > 1) the
+  formulas report a gradient of 0 there instead of inf/NaN. Everywhere else gradients are exact.
+* Known limits: in float32 a generator can overflow to +inf (the aggregate then saturates to 1)
+  while x is still representably below 1 for dombi p > 5, schweizer_sklar p < −5 and aczel_alsina
+  p > 30 (in float64 only when (x/(1 − x))^p, (1 − x)^p or (−log(1 − x))^p really exceeds 1.8e308).
+  frank's generator and inverse are accurate for any p in float64 and for 1e-37 < p < 1e37 in
+  float32 (the constants p − 1 and 1/p − 1 must be finite). Use float64 beyond those.
+* ``binary`` is the paper's two-argument formula, a float64 forward reference (tests, docs, the
+  grid); its values are right on all of [0, 1]² (frank with p < 1e-3 cancels: absolute error grows
+  to ~1e-12 at p = 1e-6 and ~1e-8 at p = 1e-10), its gradients are meant for arguments in [0, 1).
 """
 from __future__ import annotations
 
@@ -18,7 +41,7 @@ import math
 from dataclasses import dataclass
 from typing import Callable
 
-from .params import Param, Registry, validate_params
+from .params import Param, Registry, validate_params, POSITIVE, NONNEGATIVE, NEGATIVE, POSITIVE_NOT_ONE
 from .errors import ParameterError
 
 ARCHIMEDEAN, MAX, HARD_OR = "archimedean", "max", "or"
@@ -69,6 +92,9 @@ class TConorm:
             return self.name
         return self.name + "(" + ",".join(f"{k}={v:g}" for k, v in self.params) + ")"
 
+    def __repr__(self) -> str:
+        return f"TConorm({self.label()!r})"
+
     def binary(self, ops, a, b):
         """S(a, b), the paper's two-argument formula."""
         return self.family.binary(ops, a, b, **self.kwargs)
@@ -88,6 +114,29 @@ class TConorm:
     @property
     def generator_at_one(self) -> float:
         return self.family.generator_at_one(**self.kwargs)
+
+    def aggregate(self, ops, ps, log1m_ps=None):
+        """The n-ary aggregate of a Python list of same-shaped arrays ``ps`` (elementwise).
+
+        archimedean: g⁻¹(min(g(1), Σ g(p_t))) (``log1m_ps``: optional matching list of log(1 − p_t),
+        entries may be None); max: the elementwise maximum; or: 1 where any p_t >= 1/2, else 0.
+        """
+        ps = list(ps)
+        if not ps:
+            raise ValueError(f"{self!r}.aggregate needs at least one array")
+        if self.kind in (MAX, HARD_OR):
+            m = ps[0]
+            for p in ps[1:]:
+                m = ops.maximum(m, p)
+            return m if self.kind == MAX else _binarize(ops, m)
+        log1m_ps = [None] * len(ps) if log1m_ps is None else list(log1m_ps)
+        if len(log1m_ps) != len(ps):
+            raise ValueError(f"aggregate got {len(ps)} arrays but {len(log1m_ps)} log1m values")
+        s = None
+        for p, l in zip(ps, log1m_ps):
+            g = self.generator(ops, p, l)
+            s = g if s is None else s + g
+        return self.from_generator_sum(ops, s)
 
     def from_generator_sum(self, ops, s):
         """A = g⁻¹(min(g(1), s)) for a sum ``s`` of generator values (archimedean kinds only)."""
@@ -113,6 +162,79 @@ def tconorm(name, **params) -> TConorm:
 
 
 # ------------------------------------------------------------------------------------------------
+# Numerical helpers (ops-generic; constants are Python floats so float32 stays float32).
+# ------------------------------------------------------------------------------------------------
+
+_LOG_HALF = math.log(0.5)
+
+
+def _pow0(ops, x, e):
+    """x**e for x >= 0 and a Python float e > 0; 0 at x = 0 with a finite gradient there.
+
+    e >= 1: the true derivative at 0 (e·0^(e−1): 1 for e = 1, else 0). e < 1: the true derivative at
+    0 is +inf; this reports 0 (double where, so no inf/NaN reaches autograd).
+    """
+    if e == 1.0:
+        return x
+    if e > 1.0:
+        return ops.clamp(x, 0.0, None) ** e
+    pos = x > 0.0
+    return ops.where(pos, ops.where(pos, x, 1.0) ** e, 0.0)
+
+
+def _inf_guard(ops, f, args, safe):
+    """f(*args) where that is finite, else +inf with a zero gradient.
+
+    The arguments are replaced by the finite ``safe`` values where f would be inf/NaN before f is
+    evaluated again, so no 0·inf = NaN reaches autograd (the double-where trick).
+    """
+    ok = f(*args) < math.inf
+    safe_args = [ops.where(ok, a, v) for a, v in zip(args, safe)]
+    return ops.where(ok, f(*safe_args), math.inf)
+
+
+def _split_half(ops, x, l, lower, upper, at=0.5):
+    """``lower(x, l)`` for x < ``at``, ``upper(x, l)`` for x >= ``at`` (l = log(1 − x), 0 < at < 1).
+
+    Each branch only ever sees inputs from its own side (the other side is replaced by a safe point),
+    so a branch that would be inf/NaN outside its range cannot poison the gradient.
+    """
+    lo = x < at
+    xa, la = ops.where(lo, x, 0.0), ops.where(lo, l, 0.0)
+    xb, lb = ops.where(lo, at, x), ops.where(lo, math.log1p(-at), l)
+    return ops.where(lo, lower(xa, la), upper(xb, lb))
+
+
+def _split_at(ops, s, at, lower, upper):
+    """``lower(s)`` for s < ``at``, ``upper(s)`` for s >= ``at`` (at > 0), each fed safe inputs only
+    (0 and ``at``)."""
+    lo = s < at
+    return ops.where(lo, lower(ops.where(lo, s, 0.0)), upper(ops.where(lo, at, s)))
+
+
+def _log_expm1_ratio(ops, z):
+    """log(expm1(z) / z), smooth through z = 0 (series z/2 + z²/24 there).
+
+    frank calls it with z = log(p)·(1 − x) <= log(p) − 1, so expm1(z) stays finite wherever the
+    constant p itself is representable in the working dtype.
+    """
+    small = ops.abs(z) < 1e-4
+    zs = ops.where(small, 1.0, z)
+    return ops.where(small, z * (0.5 + z / 24.0), ops.log(ops.expm1(zs) / zs))
+
+
+def _binarize(ops, m):
+    return ops.where(m >= 0.5, ops.full_like(m, 1.0), ops.full_like(m, 0.0))
+
+
+def _strict(**_):
+    return math.inf
+
+
+_P = "p"
+
+
+# ------------------------------------------------------------------------------------------------
 # The families. One entry each.
 # ------------------------------------------------------------------------------------------------
 
@@ -123,4 +245,220 @@ TCONORMS.add(TConormFamily(
     generator_inverse=lambda ops, s: -ops.expm1(-s),
     generator_at_one=lambda: math.inf,
     doc="S(a, b) = a + b − ab; generator −log(1 − x). SoftRas' and DIB-R's aggregation.",
+))
+
+
+TCONORMS.add(TConormFamily(
+    "max", MAX,
+    binary=lambda ops, a, b: ops.maximum(a, b),
+    doc="S(a, b) = max(a, b), the smallest T-conorm (dual: min). Not archimedean: the n-ary aggregate "
+        "is a max-reduction; its gradient flows to the arg-max only.",
+))
+
+
+TCONORMS.add(TConormFamily(
+    "or", HARD_OR,
+    binary=lambda ops, a, b: _binarize(ops, ops.maximum(a, b)),
+    doc="The hard logical or, the non-differentiable limit: on crisp {0, 1} inputs it is logical or. "
+        "We extend it to soft inputs by binarizing at 1/2, then or-ing: S(a, b) = 1 if max(a, b) >= 1/2 "
+        "else 0 (the n-ary aggregate is 1 where any p_t >= 1/2). Piecewise constant: zero gradient.",
+))
+
+
+# --- einstein ------------------------------------------------------------------------------------
+TCONORMS.add(TConormFamily(
+    "einstein", ARCHIMEDEAN,
+    binary=lambda ops, a, b: (a + b) / (1.0 + a * b),
+    generator=lambda ops, x, log1m_x: ops.log1p(x) - log1m_x,
+    generator_inverse=lambda ops, s: ops.tanh(0.5 * s),
+    generator_at_one=_strict,
+    doc="Einstein sum S(a, b) = (a + b)/(1 + ab) (= hamacher p = 2); generator 2·atanh(x) = "
+        "log(1 + x) − log(1 − x), inverse tanh(s/2).",
+))
+
+
+# --- hamacher (p >= 0) ---------------------------------------------------------------------------
+def _hamacher_binary(ops, a, b, p):
+    # (a + b + (p − 2)ab) / (1 + (p − 1)ab), numerator and denominator written as sums of
+    # nonnegative terms (no cancellation near 0 or near 1, and numerator <= denominator in floats):
+    #   a + b + (p − 2)ab = b(1 − a) + a(1 − b) + p·ab,   1 + (p − 1)ab = (1 − a) + a(1 − b) + p·ab
+    def s(a, b):
+        pab = p * a * b
+        return (b * (1.0 - a) + a * (1.0 - b) + pab) / ((1.0 - a) + a * (1.0 - b) + pab)
+    if p == 0.0:  # 0/0 at a = b = 1, where the limit (and the boundary law) is 1
+        ok = a * b < 1.0
+        return ops.where(ok, s(ops.where(ok, a, 0.0), ops.where(ok, b, 0.0)), 1.0)
+    return s(a, b)
+
+
+def _hamacher_generator(ops, x, l, p):
+    # g = log((p + (1 − p)(1 − x))/(1 − x)) = log1p(p·x/(1 − x))   (p > 0);   x/(1 − x)   (p = 0)
+    if p == 0.0:
+        return _inf_guard(ops, lambda x, l: x * ops.exp(-l), (x, l), (0.5, _LOG_HALF))
+    log_p = math.log(p)
+    return _split_half(
+        ops, x, l,
+        lambda x, l: ops.log1p(p * x * ops.exp(-l)),            # x < 1/2: exp(−l) <= 2
+        lambda x, l: ops.softplus(log_p + ops.log(x) - l))      # x >= 1/2: log-space, no overflow
+
+
+def _hamacher_inverse(ops, s, p):
+    if p == 0.0:  # s/(1 + s), written as 1 − 1/(1 + s) for large s (no inf/inf)
+        return _split_at(ops, s, 1.0, lambda s: s / (1.0 + s), lambda s: 1.0 - 1.0 / (1.0 + s))
+    # x = expm1(s)/(expm1(s) + p) = w/(w + p·u), w = 1 − e^−s, u = e^−s: denominator >= min(1, p)
+    w, u = -ops.expm1(-s), ops.exp(-s)
+    return w / (w + p * u)
+
+
+TCONORMS.add(TConormFamily(
+    "hamacher", ARCHIMEDEAN,
+    binary=_hamacher_binary,
+    params=(Param(_P, NONNEGATIVE, doc="p = 0: Hamacher sum; p = 1: probabilistic; p = 2: einstein"),),
+    generator=_hamacher_generator,
+    generator_inverse=_hamacher_inverse,
+    generator_at_one=_strict,
+    doc="S(a, b) = (a + b + (p − 2)ab)/(1 + (p − 1)ab), p >= 0; generator log((p + (1 − p)(1 − x))/(1 − x)) "
+        "= log1p(p·x/(1 − x)) for p > 0, x/(1 − x) for p = 0; inverse expm1(s)/(expm1(s) + p) "
+        "(p > 0), s/(1 + s) (p = 0).",
+))
+
+
+# --- frank (p > 0, p != 1) ----------------------------------------------------------------------
+def _frank_binary(ops, a, b, p):
+    q, k = math.log(p), p - 1.0
+    return 1.0 - ops.log1p(ops.expm1(q * (1.0 - a)) * ops.expm1(q * (1.0 - b)) / k) / q
+
+
+def _frank_generator(ops, x, l, p):
+    # g = −log((p^(1−x) − 1)/(p − 1)) with q = log p, k = p − 1 (q/k > 0 on the whole domain).
+    # Below the split x_s (chosen so that neither form cancels, also for extreme p):
+    #   p > 1:  g = −log1p(p·expm1(−q·x)/k)                           x_s = min(1/2, 1/q)
+    #   p < 1:  g = −log1p(−p^(1−x)·(1 − p^x)/(1 − p))                 x_s = max(1/2, 1 + 1/q)
+    #           (= the same quantity; the product form cannot overflow for tiny p)
+    # Above it, with y = 1 − x = exp(l) and z = q·y (accurate as x → 1; +inf with finite gradient
+    # at l = −inf):  g = −l − log(q/k) − log(expm1(z)/z)
+    q, k = math.log(p), p - 1.0
+    c = math.log(q / k)
+    if p > 1.0:
+        at = min(0.5, 1.0 / q)
+        lower = lambda x, l: -ops.log1p((p / k) * ops.expm1(-q * x))  # noqa: E731
+    else:
+        at = max(0.5, 1.0 + 1.0 / q)
+        lower = lambda x, l: -ops.log1p(ops.exp(q * (1.0 - x)) * ops.expm1(q * x) / (1.0 - p))  # noqa: E731
+    return _split_half(ops, x, l, lower, lambda x, l: -l - c - _log_expm1_ratio(ops, q * ops.exp(l)), at)
+
+
+def _frank_inverse(ops, s, p):
+    # Solve (p^(1−x) − 1)/(p − 1) = e^−s. With w = 1 − e^−s (= −expm1(−s)), u = e^−s:
+    #   small s:  x = −log1p((1/p − 1)·w) / log p      exactly 0 at s = 0, accurate for tiny s
+    #   large s:  x = 1 − log1p((p − 1)·u) / log p     exactly 1 at s = inf, x <= 1
+    # The switch keeps each log1p argument away from −1 (>= −1/2), also for extreme p; each form
+    # only sees its own side of the switch (for extreme p the other side would reach log1p(−1)).
+    q = math.log(p)
+    s_half = math.log1p(math.sqrt(p))  # g(1/2) = log(√p + 1)
+    if p > 2.0:    # small form's argument −(1 − 1/p)·w must stay >= −1/2
+        s_switch = min(s_half, -math.log1p(-0.5 * p / (p - 1.0)))
+    elif p < 0.5:  # large form's argument −(1 − p)·u must stay >= −1/2
+        s_switch = max(s_half, math.log(2.0 * (1.0 - p)))
+    else:
+        s_switch = s_half
+    return _split_at(ops, s, s_switch,
+                     lambda s: -ops.log1p((1.0 / p - 1.0) * -ops.expm1(-s)) / q,
+                     lambda s: 1.0 - ops.log1p((p - 1.0) * ops.exp(-s)) / q)
+
+
+TCONORMS.add(TConormFamily(
+    "frank", ARCHIMEDEAN,
+    binary=_frank_binary,
+    params=(Param(_P, POSITIVE_NOT_ONE, doc="p → 1: probabilistic; p → 0: max; p → ∞: Łukasiewicz"),),
+    generator=_frank_generator,
+    generator_inverse=_frank_inverse,
+    generator_at_one=_strict,
+    doc="S(a, b) = 1 − log_p(1 + (p^(1−a) − 1)(p^(1−b) − 1)/(p − 1)), p > 0, p != 1; generator "
+        "−log((p^(1−x) − 1)/(p − 1)); inverse 1 − log_p(1 + (p − 1)e^−s).",
+))
+
+
+# --- yager (p > 0), nilpotent -------------------------------------------------------------------
+TCONORMS.add(TConormFamily(
+    "yager", ARCHIMEDEAN,
+    binary=lambda ops, a, b, p: ops.clamp(_pow0(ops, _pow0(ops, a, p) + _pow0(ops, b, p), 1.0 / p), None, 1.0),
+    params=(Param(_P, POSITIVE, doc="p = 1: bounded sum min(1, a + b); p → ∞: max"),),
+    generator=lambda ops, x, log1m_x, p: _pow0(ops, x, p),
+    generator_inverse=lambda ops, s, p: _pow0(ops, s, 1.0 / p),
+    generator_at_one=lambda p: 1.0,
+    doc="S(a, b) = min(1, (a^p + b^p)^(1/p)), p > 0; generator x^p, nilpotent (g(1) = 1: the aggregate "
+        "reaches 1 exactly once Σ p_t^p >= 1); inverse s^(1/p).",
+))
+
+
+# --- aczel_alsina (p > 0) -----------------------------------------------------------------------
+def _aczel_binary(ops, a, b, p):
+    t = _pow0(ops, -ops.log1p(-a), p) + _pow0(ops, -ops.log1p(-b), p)
+    return -ops.expm1(-_pow0(ops, t, 1.0 / p))
+
+
+TCONORMS.add(TConormFamily(
+    "aczel_alsina", ARCHIMEDEAN,
+    binary=_aczel_binary,
+    params=(Param(_P, POSITIVE, doc="p = 1: probabilistic; p → ∞: max"),),
+    generator=lambda ops, x, log1m_x, p: _inf_guard(ops, lambda l: _pow0(ops, -l, p), (log1m_x,), (_LOG_HALF,)),
+    generator_inverse=lambda ops, s, p: -ops.expm1(
+        -_inf_guard(ops, lambda s: _pow0(ops, s, 1.0 / p), (s,), (1.0,))),
+    generator_at_one=_strict,
+    doc="S(a, b) = 1 − exp(−((−log(1 − a))^p + (−log(1 − b))^p)^(1/p)), p > 0; generator (−log(1 − x))^p; "
+        "inverse 1 − exp(−s^(1/p)).",
+))
+
+
+# --- dombi (p > 0) -------------------------------------------------------------------------------
+def _dombi_binary(ops, a, b, p):
+    r = _pow0(ops, _pow0(ops, a / (1.0 - a), p) + _pow0(ops, b / (1.0 - b), p), 1.0 / p)
+    return 1.0 - 1.0 / (1.0 + r)
+
+
+def _dombi_generator(ops, x, l, p):
+    # g = (x/(1 − x))^p: x^p·(1 − x)^−p below 1/2, exp(p(log x − log(1 − x))) above (guarded overflow)
+    return _split_half(
+        ops, x, l,
+        lambda x, l: _pow0(ops, x, p) * ops.exp(-p * l),
+        lambda x, l: _inf_guard(ops, lambda x, l: ops.exp(p * (ops.log(x) - l)), (x, l), (0.5, _LOG_HALF)))
+
+
+def _dombi_inverse(ops, s, p):
+    # x = r/(1 + r), r = s^(1/p); for s >= 1 as sigmoid(log(s)/p) (s = inf → 1, no inf/inf)
+    def lower(s):
+        r = _pow0(ops, s, 1.0 / p)
+        return r / (1.0 + r)
+    return _split_at(ops, s, 1.0, lower, lambda s: ops.sigmoid(ops.log(s) / p))
+
+
+TCONORMS.add(TConormFamily(
+    "dombi", ARCHIMEDEAN,
+    binary=_dombi_binary,
+    params=(Param(_P, POSITIVE, doc="p → ∞: max"),),
+    generator=_dombi_generator,
+    generator_inverse=_dombi_inverse,
+    generator_at_one=_strict,
+    doc="S(a, b) = 1 − 1/(1 + ((a/(1 − a))^p + (b/(1 − b))^p)^(1/p)), p > 0; generator (x/(1 − x))^p; "
+        "inverse s^(1/p)/(1 + s^(1/p)).",
+))
+
+
+# --- schweizer_sklar (p < 0) ----------------------------------------------------------------------
+def _schweizer_sklar_binary(ops, a, b, p):
+    # 1 − ((1 − a)^p + (1 − b)^p − 1)^(1/p), with (1 − a)^p − 1 = expm1(p·log1p(−a)) (exact near 0)
+    t = ops.expm1(p * ops.log1p(-a)) + ops.expm1(p * ops.log1p(-b))
+    return -ops.expm1(ops.log1p(t) / p)
+
+
+TCONORMS.add(TConormFamily(
+    "schweizer_sklar", ARCHIMEDEAN,
+    binary=_schweizer_sklar_binary,
+    params=(Param(_P, NEGATIVE, doc="p = −1: hamacher p = 0; p → 0: probabilistic; p → −∞: max"),),
+    generator=lambda ops, x, log1m_x, p: _inf_guard(ops, lambda l: ops.expm1(p * l), (log1m_x,), (_LOG_HALF,)),
+    generator_inverse=lambda ops, s, p: -ops.expm1(ops.log1p(s) / p),
+    generator_at_one=_strict,
+    doc="S(a, b) = 1 − ((1 − a)^p + (1 − b)^p − 1)^(1/p), p < 0; generator (1 − x)^p − 1 = "
+        "expm1(p·log(1 − x)); inverse 1 − (1 + s)^(1/p).",
 ))
