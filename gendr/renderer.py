@@ -41,7 +41,7 @@ class RenderSettings:
 
     @property
     def tau_value(self) -> float:
-        return float(self.tau)
+        return _scalar(self.tau)
 
 
 def _number(owner, name, value, *, positive=False, nonneg=False, integer=False):
@@ -64,6 +64,11 @@ def _triple(owner, name, value):
     return t
 
 
+def _scalar(t) -> float:
+    """float() of a Python number or a 0-d array/tensor (detached first, no autograd warning)."""
+    return float(t.detach() if hasattr(t, "detach") else t)
+
+
 def _check_tau(tau):
     if isinstance(tau, bool):
         raise ParameterError(f"Renderer parameter tau={tau!r} must be a number > 0")
@@ -71,7 +76,7 @@ def _check_tau(tau):
     if tuple(shape) not in ((), (1,)):
         raise ShapeError(f"Renderer parameter tau must be a scalar, got shape {tuple(shape)}")
     try:
-        v = float(tau)
+        v = _scalar(tau)
     except (TypeError, ValueError):
         raise ParameterError(f"Renderer parameter tau={tau!r} must be a number > 0") from None
     if not (math.isfinite(v) and v > 0):
