@@ -1,0 +1,456 @@
+"""Built-in procedural meshes (pure numpy) and mesh loading.
+
+Every scene function returns a :class:`Mesh` roughly centred at the origin and inside the unit ball,
+with outward-facing counter-clockwise winding (right-handed, OpenGL convention: seen from outside, a
+face's vertices go counter-clockwise, so its normal ``(v1 - v0) x (v2 - v0)`` points out of the solid).
++Y is up; composite objects (airplane, chair, teapot) stand upright and face +X or +Z.
+
+>>> from gendr.scenes import SCENES, icosphere
+>>> icosphere(3).num_faces
+1280
+>>> sorted(SCENES)[:3]
+['airplane', 'chair', 'cube']
+
+Meshes from files go through :func:`load_mesh` (needs ``trimesh``, imported lazily).
+"""
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from .errors import InputValueError, ShapeError, UnknownNameError, BackendUnavailableError
+
+__all__ = ["Mesh", "icosphere", "cube", "torus", "thin_shape", "airplane", "chair", "teapot_like",
+           "tetrahedron", "open_mesh", "degenerate_mesh", "SCENES", "get_scene", "load_mesh",
+           "normalize", "concatenate"]
+
+
+@dataclass(frozen=True, eq=False)
+class Mesh:
+    """A triangle mesh.
+
+    Attributes:
+        vertices: float64 array ``[V, 3]``, world coordinates.
+        faces: int64 array ``[F, 3]``, indices into ``vertices``; counter-clockwise seen from
+            outside (outward normals) for the built-in closed scenes.
+
+    The constructor converts the inputs (any array-like) to these dtypes and checks shapes and that
+    every index lies in ``[0, V)``; it raises :class:`~gendr.errors.ShapeError` or
+    :class:`~gendr.errors.InputValueError`.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+
+    def __post_init__(self):
+        v = np.ascontiguousarray(np.asarray(self.vertices, dtype=np.float64))
+        f = np.asarray(self.faces)
+        if f.size == 0:
+            f = f.reshape(-1, 3)
+        if v.ndim != 2 or v.shape[1] != 3:
+            raise ShapeError(f"mesh vertices must have shape [V, 3], got {tuple(v.shape)}")
+        if f.ndim != 2 or f.shape[1] != 3:
+            raise ShapeError(f"mesh faces must have shape [F, 3], got {tuple(f.shape)}")
+        if f.size and not np.issubdtype(f.dtype, np.integer):
+            if not np.all(np.equal(np.mod(f, 1), 0)):
+                raise InputValueError("mesh face indices must be integers")
+        f = np.ascontiguousarray(f.astype(np.int64))
+        if f.size and (f.min() < 0 or f.max() >= len(v)):
+            raise InputValueError(f"mesh face indices must lie in [0, {len(v)}), got range "
+                                  f"[{int(f.min())}, {int(f.max())}]")
+        object.__setattr__(self, "vertices", v)
+        object.__setattr__(self, "faces", f)
+
+    def __repr__(self) -> str:
+        return f"Mesh(V={self.num_vertices}, F={self.num_faces})"
+
+    @property
+    def num_vertices(self) -> int:
+        return int(self.vertices.shape[0])
+
+    @property
+    def num_faces(self) -> int:
+        return int(self.faces.shape[0])
+
+    def face_normals(self, normalized: bool = True) -> np.ndarray:
+        """``[F, 3]`` normals ``(v1 - v0) x (v2 - v0)`` (length = twice the area unless normalized)."""
+        t = self.vertices[self.faces]
+        n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+        if normalized:
+            length = np.linalg.norm(n, axis=1, keepdims=True)
+            n = n / np.where(length > 0, length, 1.0)
+        return n
+
+    def face_areas(self) -> np.ndarray:
+        """``[F]`` triangle areas."""
+        return 0.5 * np.linalg.norm(self.face_normals(normalized=False), axis=1)
+
+    def vertex_normals(self) -> np.ndarray:
+        """``[V, 3]`` unit area-weighted vertex normals (zero for unused vertices)."""
+        n = np.zeros_like(self.vertices)
+        fn = self.face_normals(normalized=False)
+        for k in range(3):
+            np.add.at(n, self.faces[:, k], fn)
+        length = np.linalg.norm(n, axis=1, keepdims=True)
+        return n / np.where(length > 0, length, 1.0)
+
+    def signed_volume(self) -> float:
+        """Signed enclosed volume; > 0 for a closed mesh with outward normals."""
+        t = self.vertices[self.faces]
+        return float(np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6.0)
+
+    @property
+    def bounding_radius(self) -> float:
+        """Largest distance of a vertex from the origin."""
+        return float(np.linalg.norm(self.vertices, axis=1).max()) if self.num_vertices else 0.0
+
+
+# ------------------------------------------------------------------------------------------------
+# helpers
+# ------------------------------------------------------------------------------------------------
+
+def concatenate(meshes) -> Mesh:
+    """One mesh holding all parts (vertices are not merged, so closed parts stay closed)."""
+    vs, fs, offset = [], [], 0
+    for m in meshes:
+        vs.append(m.vertices)
+        fs.append(m.faces + offset)
+        offset += m.num_vertices
+    return Mesh(np.concatenate(vs), np.concatenate(fs))
+
+
+def normalize(mesh: Mesh, radius: float = 1.0) -> Mesh:
+    """Centre ``mesh`` on its bounding-box centre and scale it so the farthest vertex is at ``radius``."""
+    if not (isinstance(radius, (int, float)) and math.isfinite(radius) and radius > 0):
+        raise InputValueError(f"normalize radius must be a finite number > 0, got {radius!r}")
+    v = mesh.vertices
+    if len(v) == 0:
+        return mesh
+    if not np.all(np.isfinite(v)):
+        raise InputValueError("cannot normalize a mesh with non-finite vertices")
+    centre = 0.5 * (v.min(axis=0) + v.max(axis=0))
+    v = v - centre
+    r = float(np.linalg.norm(v, axis=1).max())
+    if r > 0:
+        v = v * (radius / r)
+    return Mesh(v, mesh.faces)
+
+
+def _orient_convex(vertices: np.ndarray, faces: np.ndarray, centre=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """Flip faces of a convex (star-shaped around ``centre``) mesh so that normals point outwards."""
+    t = vertices[faces]
+    n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    out = np.einsum("ij,ij->i", n, t.mean(axis=1) - np.asarray(centre, dtype=np.float64)) < 0
+    faces = faces.copy()
+    faces[out] = faces[out][:, ::-1]
+    return faces
+
+
+def _rotation(axis, degrees: float) -> np.ndarray:
+    """3x3 right-handed rotation about ``axis`` by ``degrees`` (Rodrigues)."""
+    a = np.asarray(axis, dtype=np.float64)
+    a = a / np.linalg.norm(a)
+    th = math.radians(degrees)
+    k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+    return np.eye(3) + math.sin(th) * k + (1 - math.cos(th)) * (k @ k)
+
+
+def _transform(mesh: Mesh, scale=(1.0, 1.0, 1.0), rotation=None, translate=(0.0, 0.0, 0.0)) -> Mesh:
+    """x -> R (S x) + t. A mirroring scale (det < 0) flips the faces to keep them outward."""
+    s = np.broadcast_to(np.asarray(scale, dtype=np.float64), (3,))
+    v = mesh.vertices * s
+    if rotation is not None:
+        v = v @ np.asarray(rotation).T
+    faces = mesh.faces if np.prod(s) > 0 else mesh.faces[:, ::-1]
+    return Mesh(v + np.asarray(translate, dtype=np.float64), faces)
+
+
+def _box(centre=(0.0, 0.0, 0.0), half=(0.5, 0.5, 0.5), rotation=None) -> Mesh:
+    corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=np.float64)
+    # two triangles per side; orientation fixed by _orient_convex
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    faces = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))], dtype=np.int64)
+    faces = _orient_convex(corners, faces)
+    return _transform(Mesh(corners, faces), half, rotation, centre)
+
+
+def _frustum(p0, p1, r0: float, r1: float, segments: int = 24) -> Mesh:
+    """Closed truncated cone (cylinder when r0 == r1) from point p0 (radius r0) to p1 (radius r1)."""
+    p0, p1 = np.asarray(p0, dtype=np.float64), np.asarray(p1, dtype=np.float64)
+    axis = p1 - p0
+    h = float(np.linalg.norm(axis))
+    ang = np.linspace(0.0, 2 * math.pi, segments, endpoint=False)
+    ring = np.stack([np.cos(ang), np.sin(ang), np.zeros_like(ang)], axis=1)
+    bottom = ring * r0 + [0.0, 0.0, -h / 2]
+    top = ring * r1 + [0.0, 0.0, h / 2]
+    v = np.concatenate([bottom, top, [[0.0, 0.0, -h / 2], [0.0, 0.0, h / 2]]])
+    i = np.arange(segments)
+    j = (i + 1) % segments
+    cb, ct = 2 * segments, 2 * segments + 1
+    faces = np.concatenate([
+        np.stack([i, j, j + segments], 1), np.stack([i, j + segments, i + segments], 1),
+        np.stack([np.full_like(i, cb), j, i], 1), np.stack([np.full_like(i, ct), i + segments, j + segments], 1),
+    ]).astype(np.int64)
+    faces = _orient_convex(v, faces)
+    # rotate +Z onto the axis direction
+    d = axis / h
+    z = np.array([0.0, 0.0, 1.0])
+    c = float(np.dot(z, d))
+    if c > 1 - 1e-12:
+        R = np.eye(3)
+    elif c < -1 + 1e-12:
+        R = _rotation((1.0, 0.0, 0.0), 180.0)
+    else:
+        R = _rotation(np.cross(z, d), math.degrees(math.acos(c)))
+    return _transform(Mesh(v, faces), 1.0, R, 0.5 * (p0 + p1))
+
+
+def _torus_z(R: float, r: float, n_major: int, n_minor: int) -> Mesh:
+    """Torus around the Z axis, outward winding."""
+    u = np.linspace(0.0, 2 * math.pi, n_major, endpoint=False)[:, None]
+    w = np.linspace(0.0, 2 * math.pi, n_minor, endpoint=False)[None, :]
+    x = (R + r * np.cos(w)) * np.cos(u)
+    y = (R + r * np.cos(w)) * np.sin(u)
+    z = np.broadcast_to(r * np.sin(w), x.shape)
+    v = np.stack([x, y, z], axis=-1).reshape(-1, 3)
+    i = np.arange(n_major)[:, None]
+    j = np.arange(n_minor)[None, :]
+    a = i * n_minor + j
+    b = ((i + 1) % n_major) * n_minor + j
+    c = ((i + 1) % n_major) * n_minor + (j + 1) % n_minor
+    d = i * n_minor + (j + 1) % n_minor
+    # ∂P/∂u × ∂P/∂w points outwards, so (a, b, c) ordered u-then-w is counter-clockwise from outside
+    faces = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)])
+    return Mesh(v, faces.astype(np.int64))
+
+
+_ICOSAHEDRON_FACES = np.array([
+    [0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4], [11, 10, 2],
+    [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8], [3, 8, 9], [4, 9, 5],
+    [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1]], dtype=np.int64)
+
+
+def _check_int(name: str, value, lo: int, hi: int | None = None) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < lo or (hi is not None and value > hi):
+        rng = f">= {lo}" if hi is None else f"in [{lo}, {hi}]"
+        raise InputValueError(f"{name} must be an integer {rng}, got {value!r}")
+    return int(value)
+
+
+def _check_pos(name: str, value) -> float:
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        x = float("nan")
+    if not (math.isfinite(x) and x > 0):
+        raise InputValueError(f"{name} must be a finite number > 0, got {value!r}")
+    return x
+
+
+# ------------------------------------------------------------------------------------------------
+# scenes
+# ------------------------------------------------------------------------------------------------
+
+def icosphere(subdivisions: int = 3, radius: float = 1.0) -> Mesh:
+    """Geodesic sphere: an icosahedron subdivided ``subdivisions`` times (each face into 4).
+
+    Faces: 20·4^s (s = 3: 1,280 faces, 642 vertices; s = 5: 20,480 faces). Vertices: 10·4^s + 2.
+    """
+    s = _check_int("icosphere subdivisions", subdivisions, 0, 8)
+    radius = _check_pos("icosphere radius", radius)
+    t = (1.0 + math.sqrt(5.0)) / 2.0
+    v = np.array([[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t], [0, -1, -t],
+                  [0, 1, -t], [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]], dtype=np.float64)
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    f = _orient_convex(v, _ICOSAHEDRON_FACES)
+    for _ in range(s):
+        edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+        uniq, inverse = np.unique(edges, axis=0, return_inverse=True)
+        mid = v[uniq[:, 0]] + v[uniq[:, 1]]
+        mid /= np.linalg.norm(mid, axis=1, keepdims=True)
+        m = inverse.reshape(-1) + len(v)
+        nf = len(f)
+        ab, bc, ca = m[:nf], m[nf:2 * nf], m[2 * nf:]
+        a, b, c = f[:, 0], f[:, 1], f[:, 2]
+        f = np.concatenate([np.stack([a, ab, ca], 1), np.stack([b, bc, ab], 1),
+                            np.stack([c, ca, bc], 1), np.stack([ab, bc, ca], 1)])
+        v = np.concatenate([v, mid])
+    return Mesh(v * radius, f)
+
+
+def cube(size: float = 1.0) -> Mesh:
+    """Axis-aligned cube with edge length ``size`` centred at the origin (8 vertices, 12 faces).
+
+    The default ``size=1`` fits in the unit ball (half diagonal 0.866).
+    """
+    size = _check_pos("cube size", size)
+    return _box(half=(size / 2,) * 3)
+
+
+def torus(R: float = 0.7, r: float = 0.3, n_major: int = 48, n_minor: int = 24) -> Mesh:
+    """Ring torus lying in the XZ plane (axis +Y): major radius ``R``, tube radius ``r``.
+
+    ``2·n_major·n_minor`` faces; genus 1 (Euler characteristic 0). Default fits the unit ball (R + r = 1).
+    """
+    R, r = _check_pos("torus R", R), _check_pos("torus r", r)
+    if r >= R:
+        raise InputValueError(f"torus needs r < R (a ring torus), got R={R!r}, r={r!r}")
+    n_major = _check_int("torus n_major", n_major, 3)
+    n_minor = _check_int("torus n_minor", n_minor, 3)
+    # rotate the Z axis onto +Y: (x, y, z) -> (x, z, -y)
+    return _transform(_torus_z(R, r, n_major, n_minor), 1.0, _rotation((1.0, 0.0, 0.0), -90.0))
+
+
+def thin_shape(length: float = 1.8, width: float = 0.03) -> Mesh:
+    """A needle: a long thin box (``length`` x ``width`` x ``width``) turned diagonally in the image.
+
+    Tests soft coverage of features thinner than a pixel.
+    """
+    length, width = _check_pos("thin_shape length", length), _check_pos("thin_shape width", width)
+    R = _rotation((0.0, 1.0, 0.0), 20.0) @ _rotation((0.0, 0.0, 1.0), 30.0)
+    return _box(half=(length / 2, width / 2, width / 2), rotation=R)
+
+
+def airplane() -> Mesh:
+    """An airplane from primitives: ellipsoid fuselage (nose at +X), wings, engines, tail plane, fin."""
+    body = _transform(icosphere(2), (0.9, 0.11, 0.11))
+    wings = _box(centre=(0.05, 0.0, 0.0), half=(0.14, 0.018, 0.78))
+    engines = [_frustum((0.22, -0.08, z), (-0.02, -0.08, z), 0.05, 0.04, 16) for z in (-0.38, 0.38)]
+    tail = _box(centre=(-0.74, 0.02, 0.0), half=(0.08, 0.014, 0.28))
+    fin = _box(centre=(-0.76, 0.17, 0.0), half=(0.08, 0.15, 0.014))
+    return normalize(concatenate([body, wings, *engines, tail, fin]), radius=0.95)
+
+
+def chair() -> Mesh:
+    """A chair: seat, back rest (at -Z) and four legs, standing on -Y."""
+    seat = _box(centre=(0.0, 0.0, 0.0), half=(0.4, 0.04, 0.4))
+    back = _box(centre=(0.0, 0.46, -0.37), half=(0.4, 0.42, 0.03))
+    legs = [_box(centre=(sx * 0.34, -0.42, sz * 0.34), half=(0.035, 0.38, 0.035))
+            for sx in (-1, 1) for sz in (-1, 1)]
+    return normalize(concatenate([seat, back, *legs]), radius=0.95)
+
+
+def teapot_like() -> Mesh:
+    """An asymmetric teapot: ellipsoid body, spout (+X), ring handle (-X), lid and knob on top."""
+    body = _transform(icosphere(3), (0.5, 0.36, 0.5))
+    spout = _frustum((0.36, -0.06, 0.0), (0.8, 0.26, 0.0), 0.09, 0.035, 20)
+    handle = _transform(_torus_z(0.2, 0.04, 32, 12), 1.0, None, (-0.5, 0.03, 0.0))
+    lid = _frustum((0.0, 0.3, 0.0), (0.0, 0.38, 0.0), 0.26, 0.2, 32)
+    knob = _transform(icosphere(1), 0.07, None, (0.0, 0.44, 0.0))
+    return normalize(concatenate([body, spout, handle, lid, knob]), radius=0.95)
+
+
+def tetrahedron() -> Mesh:
+    """Regular tetrahedron inscribed in the unit ball (4 vertices, 4 faces)."""
+    v = np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]], dtype=np.float64) / math.sqrt(3.0)
+    f = np.array([[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]], dtype=np.int64)
+    return Mesh(v, _orient_convex(v, f))
+
+
+def open_mesh(rings: int = 8, segments: int = 32) -> Mesh:
+    """An open hemispherical bowl (opening towards +Y): not watertight, its inside shows back faces.
+
+    Normals point away from the sphere's centre (out of the bowl's convex side).
+    """
+    rings = _check_int("open_mesh rings", rings, 1)
+    segments = _check_int("open_mesh segments", segments, 3)
+    # polar angle from the bottom pole (-Y) up to the rim (equator)
+    theta = np.linspace(0.0, math.pi / 2, rings + 1)[1:]
+    phi = np.linspace(0.0, 2 * math.pi, segments, endpoint=False)
+    ring = np.stack([np.sin(theta)[:, None] * np.cos(phi), -np.cos(theta)[:, None] * np.ones_like(phi),
+                     np.sin(theta)[:, None] * np.sin(phi)], axis=-1).reshape(-1, 3)
+    v = np.concatenate([[[0.0, -1.0, 0.0]], ring])
+    j = np.arange(segments)
+    jn = (j + 1) % segments
+    faces = [np.stack([np.zeros_like(j), 1 + j, 1 + jn], 1)]
+    for k in range(rings - 1):
+        a, b = 1 + k * segments + j, 1 + k * segments + jn
+        c, d = a + segments, b + segments
+        faces += [np.stack([a, c, d], 1), np.stack([a, d, b], 1)]
+    faces = _orient_convex(v, np.concatenate(faces).astype(np.int64))
+    # centre vertically: y in [-1, 0] -> scaled into the unit ball around the origin
+    return _transform(Mesh(v, faces), 0.88, None, (0.0, 0.44, 0.0))
+
+
+def degenerate_mesh() -> Mesh:
+    """A stress test: a tetrahedron plus zero-area faces (repeated index, collinear vertices), a tiny
+    face (area ~1e-14), a needle sliver, a duplicated face and an unused vertex."""
+    tet = tetrahedron()
+    v = list(tet.vertices * 0.7)
+    f = [tuple(x) for x in tet.faces]
+    base = len(v)
+    v += [[-0.6, -0.6, 0.2], [0.0, 0.0, 0.2], [0.6, 0.6, 0.2],   # collinear
+          [0.3, -0.5, 0.5], [0.3 + 1e-7, -0.5, 0.5], [0.3, -0.5 + 1e-7, 0.5],   # tiny
+          [-0.8, 0.1, -0.3], [0.8, 0.1 + 1e-4, -0.3], [0.8, 0.1, -0.3],   # sliver
+          [0.9, -0.4, 0.0]]   # unused
+    f += [(0, 0, 1),                        # repeated index: zero area
+          (base, base + 1, base + 2),       # collinear: zero area
+          (base + 3, base + 4, base + 5),   # tiny
+          (base + 6, base + 7, base + 8),   # sliver
+          f[0]]                             # duplicate
+    return Mesh(np.array(v), np.array(f, dtype=np.int64))
+
+
+#: name -> scene function (call with no arguments for the defaults)
+SCENES: dict[str, Callable[..., Mesh]] = {
+    "icosphere": icosphere,
+    "cube": cube,
+    "torus": torus,
+    "thin_shape": thin_shape,
+    "airplane": airplane,
+    "chair": chair,
+    "teapot_like": teapot_like,
+    "tetrahedron": tetrahedron,
+    "open_mesh": open_mesh,
+    "degenerate_mesh": degenerate_mesh,
+}
+
+#: scenes that are closed 2-manifolds with outward winding (every part watertight)
+CLOSED_SCENES = ("icosphere", "cube", "torus", "thin_shape", "airplane", "chair", "teapot_like", "tetrahedron")
+
+
+def get_scene(name: str, **kwargs) -> Mesh:
+    """Build the built-in scene ``name`` (keyword arguments go to its function).
+
+    Raises :class:`~gendr.errors.UnknownNameError` listing the valid names.
+    """
+    if not isinstance(name, str) or name not in SCENES:
+        raise UnknownNameError("scene", name, sorted(SCENES))
+    return SCENES[name](**kwargs)
+
+
+def load_mesh(path) -> Mesh:
+    """Read a triangle mesh file (OBJ, PLY, STL, OFF, GLB/GLTF, ... anything trimesh reads).
+
+    Scenes with several geometries are concatenated into one mesh (transforms applied); polygons are
+    triangulated; vertices are kept as stored (no merging). Raises
+    :class:`~gendr.errors.InputValueError` naming the path when it cannot be read, holds no faces or
+    has non-finite vertices, and :class:`~gendr.errors.BackendUnavailableError` without trimesh.
+    """
+    p = os.fspath(path)
+    if not os.path.isfile(p):
+        raise InputValueError(f"mesh file {p!r} does not exist" if not os.path.exists(p)
+                              else f"mesh path {p!r} is not a file")
+    try:
+        import trimesh
+    except ImportError as e:  # pragma: no cover - trimesh is a dev dependency
+        raise BackendUnavailableError(f"reading mesh file {p!r} needs trimesh (pip install trimesh): {e}") from None
+    try:
+        loaded = trimesh.load(p, force="mesh", process=False)
+    except Exception as e:  # trimesh raises many kinds
+        raise InputValueError(f"cannot read mesh file {p!r}: {type(e).__name__}: {e}") from None
+    faces = getattr(loaded, "faces", None)
+    vertices = getattr(loaded, "vertices", None)
+    if faces is None or vertices is None or len(faces) == 0:
+        raise InputValueError(f"mesh file {p!r} contains no triangle faces")
+    vertices = np.asarray(vertices, dtype=np.float64)
+    if not np.all(np.isfinite(vertices)):
+        raise InputValueError(f"mesh file {p!r} has non-finite vertex coordinates")
+    try:
+        return Mesh(vertices, np.asarray(faces))
+    except (ShapeError, InputValueError) as e:
+        raise InputValueError(f"mesh file {p!r}: {e}") from None

@@ -1,0 +1,331 @@
+"""The command line (gendr.cli) and the PNG writer/reader it uses (gendr.png)."""
+import json
+import os
+import struct
+import subprocess
+import sys
+import zlib
+
+import numpy as np
+import pytest
+
+import gendr
+from gendr.cli import DEMO_INSTANCES, main
+from gendr.errors import DTypeError, InputValueError, ParameterError, ShapeError
+from gendr.png import contact_sheet, decode_png, encode_png, read_png, to_uint8, write_png
+from gendr.scenes import SCENES
+
+
+# ------------------------------------------------------------------------------------------------
+# PNG
+# ------------------------------------------------------------------------------------------------
+
+def _chunks(data: bytes):
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    pos, out = 8, []
+    while pos < len(data):
+        (n,) = struct.unpack(">I", data[pos:pos + 4])
+        kind, body = data[pos + 4:pos + 8], data[pos + 8:pos + 8 + n]
+        (crc,) = struct.unpack(">I", data[pos + 8 + n:pos + 12 + n])
+        assert crc == zlib.crc32(kind + body) & 0xFFFFFFFF
+        out.append((kind, body))
+        pos += 12 + n
+    return out
+
+
+@pytest.mark.parametrize("channels", [None, 1, 2, 3, 4])
+@pytest.mark.parametrize("filter_type", [None, 0, 1, 2, 3, 4])
+def test_png_round_trip_uint8(channels, filter_type):
+    rng = np.random.default_rng(channels or 0)
+    shape = (9, 11) if channels is None else (9, 11, channels)
+    img = rng.integers(0, 256, shape, dtype=np.uint8)
+    img[4:] //= 3  # some structure so the filters differ
+    back = decode_png(encode_png(img, filter_type=filter_type))
+    assert back.dtype == np.uint8
+    assert np.array_equal(back, img.reshape(9, 11, -1))
+
+
+def test_png_structure_and_header():
+    data = encode_png(np.zeros((5, 7, 4)))
+    chunks = _chunks(data)
+    assert [k for k, _ in chunks] == [b"IHDR", b"IDAT", b"IEND"]
+    w, h, depth, color, comp, filt, interlace = struct.unpack(">IIBBBBB", chunks[0][1])
+    assert (w, h, depth, color, comp, filt, interlace) == (7, 5, 8, 6, 0, 0, 0)
+    raw = zlib.decompress(chunks[1][1])
+    assert len(raw) == 5 * (1 + 7 * 4)
+    assert {struct.unpack(">IIBBBBB", _chunks(encode_png(np.zeros((2, 2, c))))[0][1])[3] for c in (1, 2, 3, 4)} == {0, 4, 2, 6}
+
+
+def test_png_float_conversion():
+    img = np.array([[-1.0, 0.0, 0.5, 1.0, 2.0, np.nan]])
+    assert to_uint8(img)[0, :, 0].tolist() == [0, 0, 128, 255, 255, 0]
+    assert to_uint8(np.array([[True, False]]))[0, :, 0].tolist() == [255, 0]
+    assert to_uint8(np.ones((2, 2), dtype=np.float32)).max() == 255
+
+
+def test_write_png_round_trip_and_atomic(tmp_path):
+    img = np.linspace(0, 1, 6 * 8 * 3).reshape(6, 8, 3)
+    path = write_png(tmp_path / "a.png", img)
+    assert path == tmp_path / "a.png"
+    assert np.array_equal(read_png(path), to_uint8(img))
+    assert os.listdir(tmp_path) == ["a.png"]  # no temporary file left behind
+    assert oct(os.stat(path).st_mode & 0o777) != oct(0o600)  # not the private mode of a temp file
+    write_png(str(tmp_path / "a.png"), np.zeros((2, 2)))  # overwrite, str path
+    assert read_png(tmp_path / "a.png").shape == (2, 2, 1)
+
+
+def test_write_png_failure_leaves_old_file_and_no_temp(tmp_path, monkeypatch):
+    path = tmp_path / "keep.png"
+    write_png(path, np.ones((3, 3)))
+    before = path.read_bytes()
+
+    def boom(src, dst):
+        raise OSError("disk full")
+    monkeypatch.setattr(os, "replace", boom)
+    with pytest.raises(OSError, match="disk full"):
+        write_png(path, np.zeros((4, 4, 4)))
+    monkeypatch.undo()
+    assert path.read_bytes() == before
+    assert os.listdir(tmp_path) == ["keep.png"]
+    with pytest.raises(ShapeError):  # invalid input: nothing is created at all
+        write_png(tmp_path / "bad.png", np.zeros((3, 3, 5)))
+    assert os.listdir(tmp_path) == ["keep.png"]
+
+
+@pytest.mark.parametrize("shape", [(4,), (2, 3, 5), (1, 2, 3, 4), (0, 3, 3)])
+def test_png_bad_shapes_name_the_shape(shape):
+    with pytest.raises(ShapeError, match=str(shape).replace("(", r"\(").replace(")", r"\)")):
+        encode_png(np.zeros(shape))
+
+
+def test_png_bad_dtype():
+    with pytest.raises(DTypeError, match="int32"):
+        encode_png(np.zeros((2, 2), dtype=np.int32))
+
+
+def test_read_png_errors(tmp_path):
+    p = tmp_path / "x.png"
+    p.write_bytes(b"not a png at all")
+    with pytest.raises(InputValueError, match="x.png"):
+        read_png(p)
+    data = bytearray(encode_png(np.zeros((3, 3))))
+    data[20] ^= 0xFF  # corrupt the IHDR -> CRC mismatch
+    p.write_bytes(bytes(data))
+    with pytest.raises(InputValueError, match="CRC"):
+        read_png(p)
+    with pytest.raises(InputValueError, match="missing.png"):
+        read_png(tmp_path / "missing.png")
+
+
+def test_contact_sheet_layout():
+    a = np.zeros((4, 5, 4)); a[..., 0] = 1; a[..., 3] = 1          # red RGBA
+    b = np.full((2, 3), 0.5)                                          # gray, smaller: centred
+    c = (np.ones((4, 5, 3)) * 255).astype(np.uint8)                   # white RGB uint8
+    sheet = contact_sheet([a, b, c], columns=2, pad=1, background=(0, 0, 1, 1))
+    assert sheet.shape == (1 + 2 * (4 + 1), 1 + 2 * (5 + 1), 4)
+    assert np.allclose(sheet[1:5, 1:6], a)
+    assert np.allclose(sheet[0], [0, 0, 1, 1])  # border
+    assert np.allclose(sheet[1 + 1:1 + 3, 7 + 1:7 + 4, :3], 0.5)  # b centred in cell (0, 1)
+    assert np.allclose(sheet[1 + 1:1 + 3, 7 + 1:7 + 4, 3], 1.0)
+    assert np.allclose(sheet[6:10, 1:6], 1.0)  # c in cell (1, 0)
+    assert np.allclose(sheet[6:10, 7:12], [0, 0, 1, 1])  # empty cell: background
+    assert contact_sheet([a] * 4).shape == (2 + 2 * 6, 2 + 2 * 7, 4)  # default: square-ish, pad 2
+    batch = np.zeros((3, 4, 5, 4))
+    assert contact_sheet(batch, columns=3, pad=0).shape == (4, 15, 4)
+
+
+def test_contact_sheet_errors():
+    with pytest.raises(ShapeError, match="at least one"):
+        contact_sheet([])
+    with pytest.raises(ShapeError, match=r"image 1 .*\(2, 2, 7\)"):
+        contact_sheet([np.zeros((2, 2, 3)), np.zeros((2, 2, 7))])
+    with pytest.raises(ParameterError, match="columns"):
+        contact_sheet([np.zeros((2, 2, 3))], columns=0)
+
+
+# ------------------------------------------------------------------------------------------------
+# CLI
+# ------------------------------------------------------------------------------------------------
+
+def _run(capsys, *argv):
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def _error_line(err):
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("gendr: error: ") and "Traceback" not in err
+    return lines[0]
+
+
+def test_help(capsys):
+    code, out, _ = _run(capsys, "--help")
+    assert code == 0
+    assert "render" in out and "demo" in out and "list" in out and "examples:" in out
+    for cmd in ("render", "demo", "list"):
+        code, out, _ = _run(capsys, cmd, "--help")
+        assert code == 0 and "examples:" in out and f"gendr {cmd}" in out
+    code, out, _ = _run(capsys, "render", "--help")
+    for option in ("--distribution", "--dist-param", "--reversed", "--squared", "--shift", "--tconorm",
+                   "--tconorm-param", "--tau", "--eps", "--size", "--camera", "--azimuth", "--elevation",
+                   "--distance", "--fov", "--blend", "--backend", "--batch-views", "--instance"):
+        assert option in out
+
+
+def test_usage_errors_exit_2(capsys):
+    assert _run(capsys, )[0] == 2  # no command
+    code, _, err = _run(capsys, "render", "icosphere", "-o", "x.png", "--size", "12y")
+    assert code == 2 and "--size" in err
+    code, _, err = _run(capsys, "list", "nothing")
+    assert code == 2
+
+
+def test_list(capsys):
+    code, out, _ = _run(capsys, "list", "scenes")
+    assert code == 0 and all(name in out for name in SCENES) and "1280" in out
+    code, out, _ = _run(capsys, "list", "distributions")
+    assert code == 0 and "logistic" in out
+    code, out, _ = _run(capsys, "list", "tconorms")
+    assert code == 0 and "probabilistic" in out and "yager" in out and "p (" in out
+    code, out, _ = _run(capsys, "list", "backends")
+    assert code == 0 and "torch" in out
+
+
+@pytest.mark.skipif(not hasattr(gendr, "paper_grid"), reason="gendr.paper_grid() not available yet")
+def test_list_grid(capsys):
+    code, out, _ = _run(capsys, "list", "grid")
+    grid = gendr.paper_grid()
+    assert code == 0
+    lines = out.splitlines()  # exactly one line per instance on stdout
+    assert len(lines) == len(grid) == 1242
+    assert lines[0].split(None, 1) == ["0", grid[0].name]
+
+
+def _alpha_checks(path, shape):
+    img = read_png(path)
+    assert img.shape == shape
+    assert img[..., 3].max() > 0
+    for corner in (img[0, 0], img[0, -1], img[-1, 0], img[-1, -1]):
+        assert corner[3] == 0
+    return img
+
+
+def test_render_builtin_scene(tmp_path, capsys):
+    out = tmp_path / "sub" / "sphere.png"
+    code, stdout, err = _run(capsys, "render", "icosphere", "-o", str(out), "--size", "24x32")
+    assert code == 0, err
+    assert str(out) in stdout
+    _alpha_checks(out, (24, 32, 4))
+
+
+def test_render_options(tmp_path, capsys):
+    out = tmp_path / "t.png"
+    code, _, err = _run(capsys, "render", "tetrahedron", "-o", str(out), "--size", "20",
+                        "--distribution", "logistic", "--squared", "--tau", "1e-4", "--tconorm", "yager",
+                        "--tconorm-param", "p=2", "--camera", "orthographic", "--azimuth", "10",
+                        "--elevation", "-15", "--blend", "hard", "--colors", "normals", "--eps", "1e-3")
+    assert code == 0, err
+    _alpha_checks(out, (20, 20, 4))
+
+
+def test_render_batch_views(tmp_path, capsys):
+    out = tmp_path / "views.png"
+    code, _, err = _run(capsys, "render", "chair", "-o", str(out), "--size", "16", "--batch-views", "3",
+                        "--blend", "none")
+    assert code == 0, err
+    img = read_png(out)
+    assert img.shape == (16 + 4, 3 * 16 + 4 * 2, 4)
+    for k in range(3):  # every view shows something
+        x = 2 + k * 18
+        assert img[2:18, x:x + 16, 3].max() > 0
+
+
+def test_render_mesh_file(tmp_path, capsys):
+    trimesh = pytest.importorskip("trimesh")
+    mesh = trimesh.creation.box(extents=(30.0, 20.0, 10.0))  # far outside the unit ball: normalised
+    mesh.apply_translation((100.0, 0.0, 0.0))
+    path = tmp_path / "box.obj"
+    mesh.export(path)
+    out = tmp_path / "box.png"
+    code, stdout, err = _run(capsys, "render", str(path), "-o", str(out), "--size", "24")
+    assert code == 0, err
+    assert "box.obj" in stdout
+    _alpha_checks(out, (24, 24, 4))
+
+
+def test_bad_distribution_lists_valid_names(tmp_path, capsys):
+    code, _, err = _run(capsys, "render", "cube", "-o", str(tmp_path / "x.png"), "--distribution", "nope")
+    assert code == 2
+    line = _error_line(err)
+    assert "nope" in line and "logistic" in line
+    for name in gendr.DISTRIBUTIONS:
+        assert name in line
+    assert not (tmp_path / "x.png").exists()
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["render", "no_such_scene", "-o", "x.png"], "no_such_scene"),
+    (["render", "cube", "-o", "x.png", "--tconorm", "yagr"], "yager"),
+    (["render", "cube", "-o", "x.png", "--tconorm", "yager", "--tconorm-param", "p"], "NAME=VALUE"),
+    (["render", "cube", "-o", "x.png", "--tconorm", "yager", "--tconorm-param", "p=-1"], "p"),
+    (["render", "cube", "-o", "x.png", "--dist-param", "shape=0.5"], "shape"),
+    (["render", "cube", "-o", "x.png", "--tau", "-1"], "tau"),
+    (["render", "cube", "-o", "x.png", "--instance", "3", "--distribution", "logistic"], "--instance"),
+    (["render", "cube", "-o", "x.png", "--backend", "nonexistent"], "torch"),
+    (["demo", "-o", "d", "--scenes", "cube,nope"], "nope"),
+])
+def test_gendr_errors_are_one_line_exit_2(tmp_path, capsys, monkeypatch, argv, needle):
+    monkeypatch.chdir(tmp_path)
+    code, _, err = _run(capsys, *argv)
+    assert code == 2
+    assert needle in _error_line(err)
+
+
+def test_missing_mesh_file(tmp_path, capsys):
+    code, _, err = _run(capsys, "render", str(tmp_path / "missing.obj"), "-o", str(tmp_path / "x.png"))
+    assert code == 2 and "missing.obj" in _error_line(err)
+
+
+@pytest.mark.skipif(not hasattr(gendr, "paper_grid"), reason="gendr.paper_grid() not available yet")
+def test_render_instance(tmp_path, capsys):
+    grid = gendr.paper_grid()
+    k = next(i for i, inst in enumerate(grid) if inst.tconorm.name == "probabilistic")
+    out = tmp_path / "inst.png"
+    code, stdout, err = _run(capsys, "render", "cube", "-o", str(out), "--size", "16", "--instance", str(k))
+    assert code == 0, err
+    assert grid[k].name in stdout
+    assert read_png(out).shape == (16, 16, 4)
+    code, _, err = _run(capsys, "render", "cube", "-o", str(out), "--instance", str(len(grid)))
+    assert code == 2 and "out of range" in _error_line(err)
+
+
+def test_demo(tmp_path, capsys):
+    out = tmp_path / "demo"
+    code, stdout, err = _run(capsys, "demo", "-o", str(out), "--size", "32")
+    assert code == 0, err
+    png, js = out / "contact_sheet.png", out / "contact_sheet.json"
+    assert str(png) in stdout and str(js) in stdout and " s" in stdout
+    sheet = read_png(png)
+    summary = json.loads(js.read_text())
+    assert [r["scene"] for r in summary["rows"]] == list(SCENES)
+    assert len(summary["columns"]) == len(DEMO_INSTANCES) == 6
+    pad = summary["pad"]
+    assert sheet.shape == (pad + len(SCENES) * (32 + pad), pad + 6 * (32 + pad), 4)
+    assert summary["sheet_size"] == list(sheet.shape[:2])
+    labels = [c["label"] for c in summary["columns"]]
+    assert any("softras" in l for l in labels) and any("heaviside" in l for l in labels)
+    for r, row in enumerate(summary["cells"]):
+        for c, cell in enumerate(row):
+            assert (cell["row"], cell["column"], cell["scene"]) == (r, c, summary["rows"][r]["scene"])
+            tile = sheet[cell["y"]:cell["y"] + cell["height"], cell["x"]:cell["x"] + cell["width"]]
+            assert tile.shape == (32, 32, 4) and tile[..., 3].min() == 255  # composited: opaque
+            assert cell["alpha_mean"] > 0, cell  # every scene is visible with every instance
+
+
+def test_console_process_errors_have_no_traceback(tmp_path):
+    res = subprocess.run([sys.executable, "-m", "gendr.cli", "render", "nope", "-o", str(tmp_path / "x.png")],
+                         capture_output=True, text=True)
+    assert res.returncode == 2
+    assert res.stderr.startswith("gendr: error: ") and "Traceback" not in res.stderr
