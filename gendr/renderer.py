@@ -134,7 +134,8 @@ class Renderer:
         drop faces whose projection is clockwise from the RGB blend (the silhouette always counts
         every face).
     max_pairs : int
-        budget of (pixel, face) pairs processed at once; larger scenes are processed in row bands
+        budget of (pixel, face) pairs processed at once (cache-sized bands are fastest on CPU);
+        larger scenes are processed in row bands
         (memory stays O(pixels + faces + max_pairs)).
     backend_options : passed to the backend (e.g. ``device="cuda"``).
     """
@@ -142,7 +143,7 @@ class Renderer:
     def __init__(self, distribution="logistic", tconorm="probabilistic", tau=0.01, image_size=(256, 256),
                  backend="torch", eps=1e-4, *, blend="softmax", gamma=1e-4, background_eps=1e-3,
                  background=(0.0, 0.0, 0.0), ambient=0.5, diffuse=0.5, light_direction=(0.0, 0.0, -1.0),
-                 cull_backfaces=False, max_pairs=4_000_000, **backend_options):
+                 cull_backfaces=False, max_pairs=262_144, **backend_options):
         dist = make_distribution(distribution)
         tcn = make_tconorm(tconorm)
         _check_tau(tau)
