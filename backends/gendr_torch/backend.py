@@ -26,10 +26,11 @@ class TorchBackend:
             t = x
         else:
             a = np.asarray(x)
-            if a.dtype.kind not in "fiu":
-                raise DTypeError(f"{name} must be a float32 or float64 array, got dtype {a.dtype}")
-            if a.dtype.kind in "iu" or a.dtype == np.float16:
-                a = a.astype(np.float32)
+            # colours (cast to the vertices' dtype) may be given as integers; geometry may not
+            if not (a.dtype in (np.float32, np.float64) or (like is not None and a.dtype.kind in "iu")):
+                raise DTypeError(f"{name} must be float32 or float64, got dtype {a.dtype}")
+            if not a.flags.writeable:  # torch warns on read-only memory; never write into the caller's array
+                a = a.copy()
             t = torch.as_tensor(a, device=self.device)
         if like is not None:
             return t.to(dtype=like.dtype, device=like.device)
@@ -38,7 +39,7 @@ class TorchBackend:
         return t
 
     def index_array(self, x, name):
-        t = x if isinstance(x, torch.Tensor) else torch.as_tensor(np.asarray(x), device=self.device)
+        t = x if isinstance(x, torch.Tensor) else torch.as_tensor(np.array(x), device=self.device)
         if t.dtype.is_floating_point or t.dtype == torch.bool or t.dtype.is_complex:
             raise DTypeError(f"{name} must be an integer array, got {t.dtype}")
         return t.long()
