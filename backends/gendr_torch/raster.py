@@ -481,9 +481,11 @@ def _blend(settings, fc, sh, pix, npix, px, py, p, keep, inside, face):
     # softmax over depth (SoftRas): weights p·exp(z̃/γ), background exp(ε/γ)
     zt = (fc.far - depth) / (fc.far - fc.near)
     gamma, beps = settings.gamma, settings.background_eps
-    key = torch.where(use & (p > 0), zt.detach(), torch.full_like(zt, -math.inf))
+    live = use & (p > 0)
+    key = torch.where(live, zt.detach(), torch.full_like(zt, -math.inf))
     m = torch.full((npix,), beps, dtype=dtype, device=device).scatter_reduce(0, pix, key, "amax")
-    w = torch.where(use, p * torch.exp((zt - m[pix]) / gamma), 0.0)
+    # exponent <= 0 where live; 0 elsewhere so that exp cannot overflow into a 0·inf = NaN gradient
+    w = torch.where(live, p * torch.exp(torch.where(live, zt - m[pix], 0.0) / gamma), 0.0)
     num = torch.zeros(npix, 3, dtype=dtype, device=device).index_add(0, pix, w[:, None] * col)
     wb = torch.exp((beps - m) / gamma)
     den = torch.zeros(npix, dtype=dtype, device=device).index_add(0, pix, w) + wb
