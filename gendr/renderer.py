@@ -70,7 +70,7 @@ def _scalar(t) -> float:
 
 
 def _check_tau(tau):
-    if isinstance(tau, bool):
+    if isinstance(tau, (bool, str, bytes)):
         raise ParameterError(f"Renderer parameter tau={tau!r} must be a number > 0")
     shape = getattr(tau, "shape", ())
     if tuple(shape) not in ((), (1,)):

@@ -16,7 +16,7 @@ import torch
 from torch.utils.checkpoint import checkpoint
 
 from gendr.cameras import VEC3
-from gendr.errors import ShapeError
+from gendr.errors import InputValueError, ShapeError
 from gendr.tconorms import ARCHIMEDEAN, MAX
 
 from .ops import torch_ops as ops
@@ -41,7 +41,7 @@ def camera_tensors(camera, dtype, device):
             if t.ndim != 1:
                 raise ShapeError(f"camera parameter {name} must be a scalar or have shape [B], got {list(t.shape)}")
         if not bool(torch.isfinite(t).all()):
-            raise ShapeError(f"camera parameter {name} must be finite, got {t.detach().cpu().tolist()}")
+            raise InputValueError(f"camera parameter {name} must be finite, got {t.detach().cpu().tolist()}")
         n = t.shape[0]
         if n != 1:
             if batch not in (1, n):
@@ -176,6 +176,14 @@ def _shading_data(settings, camera, P, H, W, verts, faces, tri, colors, per_face
         a = C[..., 0] * ar / sx
         b = C[..., 1] / sy
         c0 = -C[..., 0] * ox / sx - C[..., 1] * oy / sy - C[..., 2]
+    # a face collapsed to a point or a line has no plane: its barycentrics would be rounding noise
+    # (u_i / Σu with Σu ~ 1e-17), so give it constant barycentrics 1/3
+    e1, e2 = v[:, :, 1] - v[:, :, 0], v[:, :, 2] - v[:, :, 0]
+    with torch.no_grad():
+        n2 = (torch.linalg.cross(e1, e2, dim=-1) ** 2).sum(-1)
+        degenerate = (n2 <= 1e-24 * (e1 * e1).sum(-1) * (e2 * e2).sum(-1))[..., None]
+    a, b = torch.where(degenerate, 0.0, a), torch.where(degenerate, 0.0, b)
+    c0 = torch.where(degenerate, 1.0 / 3.0, c0)
     depth = -v[..., 2]  # positive view depth per corner [B, F, 3]
 
     # --- colours: albedo per corner, Lambert-lit with vertex (smooth) or face (flat) normals ---
@@ -211,7 +219,7 @@ def pixel_ranges(fc: Faces, H: int, W: int, radius: float):
     """Inclusive pixel row/column ranges of each face's grown box, clipped to the image ([B·F] int64).
     Empty ranges (or invalid faces) have i1 < i0."""
     X0, X1, Y0, Y1 = fc.box
-    r = radius * (1 + 1e-6) + 1e-6 if math.isfinite(radius) else 4.0 * (1 + W / H)
+    r = radius * (1 + 1e-6) + 1e-6  # inf (no culling radius): ±inf bounds clamp to the whole image
     # pixel j has X = (2j + 1 - W)/H ; pixel i has Y = 1 - (2i + 1)/H
     j0 = torch.ceil((X0 - r) * (H / 2) + (W - 1) / 2)
     j1 = torch.floor((X1 + r) * (H / 2) + (W - 1) / 2)
@@ -427,6 +435,8 @@ class SoftAlpha(torch.autograd.Function):
                     first = torch.full_like(Ap, -1, dtype=torch.long).scatter_reduce_(0, pix.long(), order, "amax")
                     w = torch.where(win & (order == first[pix]), w, 0.0)
                     out = pm
+                if not out.requires_grad:  # e.g. heaviside: coverage is piecewise constant
+                    continue
                 gd, gt = torch.autograd.grad(out, (d_, tau_), w, allow_unused=True)
             if gt is not None:
                 gtau = gtau + gt
@@ -460,14 +470,15 @@ def _blend(settings, fc, sh, pix, npix, px, py, p, keep, inside, face):
     b = [torch.clamp(ui / s, min=0.0) for ui in u]
     bs = b[0] + b[1] + b[2]
     b = [bi / bs for bi in b]
-    depth = b[0] * sh[9] + b[1] * sh[10] + b[2] * sh[11]
+    # a near-clipped face extrapolates towards its corner behind the camera: clamp to the near plane
+    depth = torch.clamp(b[0] * sh[9] + b[1] * sh[10] + b[2] * sh[11], min=fc.near)
     col = torch.stack([b[0] * sh[12 + c] + b[1] * sh[15 + c] + b[2] * sh[18 + c] for c in range(3)], 1)
     use = keep if keep is not None else torch.ones_like(inside)
     if settings.cull_backfaces:
         use = use & fc.front[face]
     bg = torch.as_tensor(settings.background, dtype=dtype, device=device)
-    if settings.blend == "hard":
-        use = use & inside
+    if settings.blend == "hard":  # purely geometric: the nearest face containing the pixel centre
+        use = inside & fc.front[face] if settings.cull_backfaces else inside
         key = torch.where(use, depth.detach(), torch.full_like(depth, math.inf))
         dmin = torch.full((npix,), math.inf, dtype=dtype, device=device).scatter_reduce(0, pix, key, "amin")
         win = use & (key == dmin[pix])

@@ -1,0 +1,281 @@
+"""Typed errors (gendr.errors) whose messages name the bad value, from the Renderer facade."""
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import torch
+
+import gendr
+from gendr.errors import (DTypeError, GendrError, InputValueError, ParameterError, ShapeError,
+                          UnknownNameError)
+
+V = torch.tensor([[-0.5, -0.5, 0.0], [0.5, -0.5, 0.0], [0.0, 0.5, 0.0], [0.3, 0.3, 0.1]], dtype=torch.float64)
+F = torch.tensor([[0, 1, 2], [1, 3, 2]])
+CAM = gendr.PerspectiveCamera()
+
+
+def renderer(**kw):
+    kw.setdefault("image_size", (8, 10))
+    return gendr.Renderer(**kw)
+
+
+# ------------------------------------------------------------------------------------------------
+# names
+# ------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("kw,kind,valid", [
+    ({"distribution": "logistik"}, "distribution", "logistic"),
+    ({"tconorm": "probabilstic"}, "tconorm", "probabilistic"),
+    ({"backend": "nope"}, "backend", "torch"),
+])
+def test_unknown_names_list_the_valid_ones(kw, kind, valid):
+    with pytest.raises(UnknownNameError) as e:
+        renderer(**kw)
+    msg = str(e.value)
+    assert repr(next(iter(kw.values()))) in msg and kind in msg and valid in msg
+    assert isinstance(e.value, GendrError) and isinstance(e.value, ValueError)
+    assert valid in e.value.valid
+
+
+def test_unknown_names_list_every_registered_name():
+    with pytest.raises(UnknownNameError) as e:
+        gendr.distribution("nope")
+    assert all(n in str(e.value) for n in gendr.DISTRIBUTIONS)
+    with pytest.raises(UnknownNameError) as e:
+        gendr.tconorm("nope")
+    assert all(n in str(e.value) for n in gendr.TCONORMS)
+
+
+@pytest.mark.parametrize("name", [None, 3, ("logistic",)])
+def test_non_string_names(name):
+    with pytest.raises(UnknownNameError):
+        renderer(distribution=name)
+
+
+# ------------------------------------------------------------------------------------------------
+# parameters
+# ------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("make,bad", [
+    (lambda: gendr.tconorm("yager", p=-1.0), "-1.0"),
+    (lambda: gendr.tconorm("frank", p=1.0), "1.0"),
+    (lambda: gendr.tconorm("schweizer_sklar", p=0.5), "0.5"),
+    (lambda: gendr.tconorm("hamacher", p=-0.1), "-0.1"),
+    (lambda: gendr.tconorm("dombi", p=math.inf), "inf"),
+    (lambda: gendr.tconorm("yager"), "'p'"),  # missing
+    (lambda: gendr.tconorm("probabilistic", p=2.0), "'p'"),  # not accepted
+    (lambda: gendr.distribution("gamma", shape=0.0), "0.0"),
+    (lambda: gendr.distribution("gamma"), "'shape'"),
+    (lambda: gendr.distribution("logistic", shift=math.nan), "nan"),
+    (lambda: gendr.distribution("logistic", squared="yes"), "'yes'"),
+    (lambda: renderer(distribution="gamma"), "'shape'"),
+    (lambda: renderer(tconorm="aczel_alsina"), "'p'"),
+    (lambda: renderer(distribution=gendr.distribution("gamma", shape=-2.0)), "-2.0"),
+])
+def test_out_of_domain_parameters(make, bad):
+    with pytest.raises(ParameterError) as e:
+        make()
+    assert bad in str(e.value)
+
+
+@pytest.mark.parametrize("tau", [0.0, -0.1, math.nan, math.inf, torch.tensor(-1.0), torch.tensor(math.nan),
+                                 True, None, "abc"])
+def test_bad_tau(tau):
+    with pytest.raises(ParameterError) as e:
+        renderer(tau=tau)
+    assert "tau" in str(e.value)
+
+
+def test_tau_string_is_rejected_like_every_other_number():
+    """eps="0", gamma="1" ... are ParameterErrors ("must be a number"); tau="0.1" should be too."""
+    with pytest.raises(ParameterError) as e:
+        renderer(tau="0.1")
+    assert "tau" in str(e.value)
+
+
+def test_tau_tensor_must_be_a_scalar():
+    with pytest.raises(ShapeError) as e:
+        renderer(tau=torch.tensor([0.1, 0.2]))
+    assert "tau" in str(e.value)
+
+
+@pytest.mark.parametrize("size", [(0, 10), (10, -1), (8.0, 10), (8, 10, 3), 0, -4, 2.5, "64", None, (True, 4)])
+def test_bad_image_size(size):
+    with pytest.raises(ParameterError) as e:
+        renderer(image_size=size)
+    assert "image" in str(e.value)
+
+
+@pytest.mark.parametrize("eps", [-1e-9, 1.0, 2.0, math.nan, math.inf, "0"])
+def test_bad_eps(eps):
+    with pytest.raises(ParameterError) as e:
+        renderer(eps=eps)
+    assert "eps" in str(e.value)
+
+
+@pytest.mark.parametrize("kw,name", [
+    ({"blend": "soft"}, "blend"), ({"gamma": 0.0}, "gamma"), ({"gamma": -1.0}, "gamma"),
+    ({"background_eps": -1.0}, "background_eps"), ({"background": (1.0, 0.0)}, "background"),
+    ({"ambient": -0.5}, "ambient"), ({"diffuse": math.nan}, "diffuse"),
+    ({"light_direction": (0.0, 0.0, 0.0)}, "light_direction"), ({"max_pairs": 0}, "max_pairs"),
+    ({"max_pairs": 10.5}, "max_pairs"),
+])
+def test_bad_render_settings(kw, name):
+    with pytest.raises(ParameterError) as e:
+        renderer(**kw)
+    assert name in str(e.value)
+
+
+@pytest.mark.parametrize("make,name", [
+    (lambda: gendr.PerspectiveCamera(fov_y=180.0), "fov_y"),
+    (lambda: gendr.PerspectiveCamera(fov_y=0.0), "fov_y"),
+    (lambda: gendr.PerspectiveCamera(near=0.0), "near"),
+    (lambda: gendr.PerspectiveCamera(near=2.0, far=1.0), "far"),
+    (lambda: gendr.OrthographicCamera(xmag=-1.0), "xmag"),
+    (lambda: gendr.IntrinsicsCamera(fx=0.0), "fx"),
+    (lambda: gendr.orbit_camera(0.0, 0.0, -3.0), "distance"),
+])
+def test_bad_camera_parameters(make, name):
+    with pytest.raises(ParameterError) as e:
+        make()
+    assert name in str(e.value)
+
+
+def test_not_a_camera():
+    with pytest.raises(ParameterError) as e:
+        renderer().render(V, F, "perspective")
+    assert "camera" in str(e.value)
+
+
+# ------------------------------------------------------------------------------------------------
+# inputs
+# ------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("shape", [(4, 2), (1, 4, 3, 1), (4,), (4, 4), (2, 0, 3)])
+def test_vertices_wrong_shape(shape):
+    with pytest.raises(ShapeError) as e:
+        renderer().render(torch.zeros(shape, dtype=torch.float64), F, CAM)
+    assert str(list(shape)) in str(e.value)
+
+
+@pytest.mark.parametrize("dtype", [torch.int64, torch.int32, torch.float16, torch.bfloat16, torch.bool,
+                                   torch.complex64])
+def test_vertices_wrong_dtype(dtype):
+    with pytest.raises(DTypeError) as e:
+        renderer().render(V.to(dtype), F, CAM)
+    assert str(dtype) in str(e.value) and "vertices" in str(e.value)
+
+
+@pytest.mark.parametrize("dtype", [np.int64, np.int32, np.float16, np.bool_])
+def test_numpy_vertices_wrong_dtype(dtype):
+    with pytest.raises(DTypeError) as e:
+        renderer().render(V.numpy().astype(dtype), F, CAM)
+    assert np.dtype(dtype).name in str(e.value) and "vertices" in str(e.value)
+
+
+def test_vertices_object_array():
+    with pytest.raises(DTypeError):
+        renderer().render(np.array([["a", "b", "c"]] * 4), F, CAM)
+
+
+@pytest.mark.parametrize("faces", [F.double(), F.float(), F.bool(), F.numpy().astype(np.float32)])
+def test_faces_wrong_dtype(faces):
+    with pytest.raises(DTypeError) as e:
+        renderer().render(V, faces, CAM)
+    assert "faces" in str(e.value)
+
+
+@pytest.mark.parametrize("faces", [torch.tensor([0, 1, 2]), torch.tensor([[0, 1, 2, 3]]), torch.zeros(1, 3, 1, dtype=torch.long)])
+def test_faces_wrong_shape(faces):
+    with pytest.raises(ShapeError) as e:
+        renderer().render(V, faces, CAM)
+    assert "faces" in str(e.value)
+
+
+@pytest.mark.parametrize("bad,lo,hi", [(4, 0, 4), (-1, -1, 2), (17, 0, 17)])
+def test_face_index_out_of_range(bad, lo, hi):
+    faces = F.clone()
+    faces[1, 1] = bad
+    with pytest.raises(InputValueError) as e:
+        renderer().render(V, faces, CAM)
+    msg = str(e.value)
+    assert "[0, 3]" in msg and f"[{lo}, {hi}]" in msg
+
+
+@pytest.mark.parametrize("value", [math.nan, math.inf, -math.inf])
+def test_non_finite_vertex_names_the_index(value):
+    v = V.clone()[None].repeat(2, 1, 1)
+    v[1, 3, 2] = value
+    with pytest.raises(InputValueError) as e:
+        renderer().render(v, F, CAM)
+    assert "[1, 3, 2]" in str(e.value) and str(value) in str(e.value)
+
+
+@pytest.mark.parametrize("kw,name", [
+    ({"vertex_colors": torch.rand(3, 3, dtype=torch.float64)}, "vertex_colors"),
+    ({"vertex_colors": torch.rand(4, 4, dtype=torch.float64)}, "vertex_colors"),
+    ({"vertex_colors": torch.rand(1, 1, 4, 3, dtype=torch.float64)}, "vertex_colors"),
+    ({"face_colors": torch.rand(4, 3, dtype=torch.float64)}, "face_colors"),
+    ({"face_colors": torch.rand(2, 2, dtype=torch.float64)}, "face_colors"),
+])
+def test_colours_wrong_shape(kw, name):
+    with pytest.raises(ShapeError) as e:
+        renderer().render(V, F, CAM, **kw)
+    assert name in str(e.value)
+
+
+def test_non_finite_colour():
+    c = torch.rand(4, 3, dtype=torch.float64)
+    c[2, 1] = math.nan
+    with pytest.raises(InputValueError) as e:
+        renderer().render(V, F, CAM, vertex_colors=c)
+    assert "vertex_colors" in str(e.value) and "[2, 1]" in str(e.value)
+
+
+def test_both_colour_kinds():
+    with pytest.raises(ParameterError) as e:
+        renderer().render(V, F, CAM, vertex_colors=torch.rand(4, 3, dtype=torch.float64),
+                          face_colors=torch.rand(2, 3, dtype=torch.float64))
+    assert "vertex_colors" in str(e.value) and "face_colors" in str(e.value)
+
+
+def test_camera_batch_mismatch():
+    v = V[None].repeat(2, 1, 1)
+    cam = gendr.orbit_camera(torch.tensor([0.0, 10.0, 20.0], dtype=torch.float64), 0.0, 3.0)
+    with pytest.raises(ShapeError) as e:
+        renderer().render(v, F, cam)
+    assert "2" in str(e.value) and "3" in str(e.value)
+
+
+def test_camera_parameters_with_different_batches():
+    cam = gendr.PerspectiveCamera(eye=torch.tensor([[0.0, 0.0, 3.0]] * 2, dtype=torch.float64),
+                                  fov_y=torch.tensor([30.0, 40.0, 50.0], dtype=torch.float64))
+    with pytest.raises(ShapeError) as e:
+        renderer().render(V, F, cam)
+    assert "fov_y" in str(e.value) or "eye" in str(e.value)
+
+
+def test_camera_parameter_wrong_shape():
+    with pytest.raises(ShapeError) as e:
+        renderer().render(V, F, gendr.PerspectiveCamera(eye=torch.zeros(2, 2, dtype=torch.float64)))
+    assert "eye" in str(e.value)
+
+
+def test_non_finite_camera_parameter_is_a_value_error():
+    """A NaN in a camera parameter is a bad *value*, not a bad shape."""
+    cam = gendr.PerspectiveCamera(eye=torch.tensor([0.0, math.nan, 3.0], dtype=torch.float64))
+    with pytest.raises((InputValueError, ParameterError)) as e:
+        renderer().render(V, F, cam)
+    assert "eye" in str(e.value)
+
+
+# ------------------------------------------------------------------------------------------------
+# the spec layer does not import torch
+# ------------------------------------------------------------------------------------------------
+def test_import_gendr_does_not_import_torch():
+    code = ("import gendr, sys; "
+            "gendr.distribution('gamma', shape=2.0); gendr.tconorm('yager', p=2.0); gendr.paper_grid(); "
+            "gendr.PerspectiveCamera(); "
+            "assert 'torch' not in sys.modules, sorted(m for m in sys.modules if 'torch' in m)")
+    subprocess.run([sys.executable, "-c", code], check=True)
