@@ -8,8 +8,10 @@ Cases (DESIGN/issue 2): icosphere subdivision 3 (1,280 faces) at 256×256, logis
 forward+backward (loss = alpha.sum(), gradient w.r.t. vertices). "large": subdivision 5 (20,480
 faces) at 1024×1024, same settings.
 
-Peak extra memory: the process's resident-set high-water mark (Linux /proc/self/status VmHWM,
-reset through /proc/self/clear_refs) minus the resident set just before the measured call.
+Peak extra memory: measured in a fresh subprocess per case and mode, as the resident-set
+high-water mark (Linux /proc/self/status VmHWM) during the first call minus the resident set just
+before it (after imports and scene set-up). A fresh process matters: after a warm-up call the C
+allocator keeps freed pages, which would hide the peak.
 """
 from __future__ import annotations
 
@@ -55,19 +57,21 @@ def _reset_peak():
 
 
 def measure(fn, repeats):
-    """Seconds per call (list) and the peak extra resident memory (MB) of one call."""
-    fn()  # warm-up (allocator, lazy init)
-    rss0 = _status_kb("VmRSS")
-    peak = None
-    if rss0 is not None and _reset_peak():
-        fn()
-        peak = (_status_kb("VmHWM") - rss0) / 1024.0
+    """Seconds per call (list), after one warm-up call."""
+    fn()
     times = []
     for _ in range(repeats):
         t = time.perf_counter()
         fn()
         times.append(time.perf_counter() - t)
-    return times, peak
+    return times
+
+
+def peak_extra_mb(backend, name, mode, threads):
+    """Run one call of ``mode`` in a fresh interpreter and return its peak extra RSS in MB."""
+    cmd = [sys.executable, __file__, "--backend", backend, "--threads", str(threads), "--memory-probe", name, mode]
+    out = subprocess.run(cmd, capture_output=True, text=True, check=True).stdout
+    return json.loads(out.strip().splitlines()[-1])["peak_extra_mb"]
 
 
 def summary(times):
@@ -92,7 +96,8 @@ def machine():
             "numpy": np.__version__, "gendr": gendr.__version__, "git_commit": commit}
 
 
-def run_case(backend, name, repeats, threads):
+def setup(backend, name, threads):
+    """(forward, forward_backward, info) callables of one case."""
     import torch  # only the torch backend exists so far; inputs are torch tensors for it
     torch.set_num_threads(threads)
     cfg = CASES[name]
@@ -112,14 +117,17 @@ def run_case(backend, name, repeats, threads):
         r.render(v, faces, cam)[..., 3].sum().backward()
         return v.grad
 
-    alpha = forward()[..., 3]
-    out = {"case": name, "backend": backend, "faces": int(faces.shape[0]), "image_size": cfg["size"],
-           "instance": "logistic|probabilistic", "tau": 0.01, "eps": 1e-4, "blend": None, "threads": threads,
-           "alpha_sum": float(alpha.sum())}
-    for label, fn in (("forward", forward), ("forward_backward", forward_backward)):
-        times, peak = measure(fn, repeats)
-        out[label] = summary(times) | {"peak_extra_mb": peak}
-    out["versions"] = {"torch": torch.__version__}
+    info = {"case": name, "backend": backend, "faces": int(faces.shape[0]), "image_size": cfg["size"],
+            "instance": "logistic|probabilistic", "tau": 0.01, "eps": 1e-4, "blend": None, "threads": threads,
+            "versions": {"torch": torch.__version__}}
+    return {"forward": forward, "forward_backward": forward_backward}, info
+
+
+def run_case(backend, name, repeats, threads):
+    modes, out = setup(backend, name, threads)
+    out["alpha_sum"] = float(modes["forward"]()[..., 3].sum())
+    for label, fn in modes.items():
+        out[label] = summary(measure(fn, repeats)) | {"peak_extra_mb": peak_extra_mb(backend, name, label, threads)}
     return out
 
 
@@ -130,7 +138,15 @@ def main(argv=None):
     ap.add_argument("--repeats", type=int, default=10)
     ap.add_argument("--threads", type=int, default=os.cpu_count())
     ap.add_argument("--out", type=Path, help="write the JSON here (also printed)")
+    ap.add_argument("--memory-probe", nargs=2, metavar=("CASE", "MODE"), help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
+    if a.memory_probe:
+        modes, _ = setup(a.backend, a.memory_probe[0], a.threads)
+        rss0 = _status_kb("VmRSS")
+        _reset_peak()
+        modes[a.memory_probe[1]]()
+        print(json.dumps({"peak_extra_mb": (_status_kb("VmHWM") - rss0) / 1024.0}))
+        return 0
     result = {"machine": machine(), "results": [run_case(a.backend, c, a.repeats, a.threads) for c in (a.case or ["default"])]}
     text = json.dumps(result, indent=2)
     print(text)
