@@ -330,20 +330,22 @@ class Plan:
         return face, pix, (2 * col + 1 - W).to(dtype) / H, 1 - (2 * row + 1).to(dtype) / H
 
 
-def _generator_terms(dist, tcn, x, keep):
-    """Per-pair generator values g(p) (0 where saturated or culled) and the saturation mask."""
+def _generator_terms(dist, tcn, x, eps):
+    """Per-pair generator values g(p) (0 where saturated or culled by p < eps) and the mask of
+    saturated pairs (p = 1, or g overflowed), which set their pixel's alpha to 1."""
     p = dist.cdf(ops, x)
     log1m = dist.log_sf(ops, x)
     sat = ~torch.isfinite(log1m)
     g = tcn.generator(ops, torch.where(sat, 0.5, p), torch.where(sat, math.log(0.5), log1m))
-    over = ~torch.isfinite(g)  # the generator overflowed: saturated as well
+    over = ~torch.isfinite(g)
     if bool(over.any()):
         sat = sat | over
         g = tcn.generator(ops, torch.where(sat, 0.5, p), torch.where(sat, math.log(0.5), log1m))
-    if keep is not None:
+    if eps > 0:
+        keep = p >= eps
         sat = sat & keep
-        return torch.where(keep & ~sat, g, 0.0), sat, p
-    return torch.where(sat, 0.0, g), sat, p
+        return torch.where(keep & ~sat, g, 0.0), sat
+    return torch.where(sat, 0.0, g), sat
 
 
 def _from_sum(tcn, S, nsat):
@@ -370,11 +372,7 @@ class SoftAlpha(torch.autograd.Function):
             d, _ = signed_distance(geom.index_select(1, face), plan.fc.K, px, py)
             x = dist.argument(ops, d, tau)
             if tcn.kind == ARCHIMEDEAN:
-                p = None
-                g, sat, p = _generator_terms(dist, tcn, x, None)
-                if eps > 0:
-                    keep = p >= eps
-                    sat, g = sat & keep, torch.where(keep, g, 0.0)
+                g, sat = _generator_terms(dist, tcn, x, eps)
                 S = X.new_zeros(npix).index_add_(0, pix, g)
                 nsat = torch.zeros(npix, dtype=torch.int32, device=X.device).index_add_(0, pix, sat.to(torch.int32))
                 parts.append(torch.stack([S, nsat.to(S.dtype)], 0).reshape(2, B, r1 - r0, W))
@@ -422,10 +420,7 @@ class SoftAlpha(torch.autograd.Function):
                 tau_ = tau.detach().requires_grad_(True)
                 x = dist.argument(ops, d_, tau_)
                 if tcn.kind == ARCHIMEDEAN:
-                    g, _, p = _generator_terms(dist, tcn, x, None)
-                    if eps > 0:
-                        g = torch.where(p >= eps, g, 0.0)
-                    out = g
+                    out, _ = _generator_terms(dist, tcn, x, eps)
                 else:  # max: the gradient goes to one face attaining the maximum
                     p = dist.cdf(ops, x)
                     pm = torch.where(p >= eps, p, 0.0) if eps > 0 else p
