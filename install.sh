@@ -1,12 +1,13 @@
 #!/usr/bin/env bash
 # Set up gendr in ./.venv (idempotent: a second run skips whatever is already in place).
 #
-#   bash install.sh          # the library, the `gendr` command and the torch backend
+#   bash install.sh          # gendr, both backends (torch, drjit), validation references, experiments
 #   bash install.sh --dev    # ... plus the test dependencies (pytest, scipy, ...)
 #
 # Steps: system packages (apt, only when APT_PACKAGES lists something missing) -> .venv with the
 # machine's python3 (>= 3.10) -> torch==2.13.0 (exact pin, installed first and alone) ->
-# `pip install -e ".[torch,meshes]"` (+ `dev` with --dev) -> sanity check and a short summary.
+# `pip install -e ".[torch,drjit,validation,experiments,meshes]"` (+ `dev` with --dev) -> pyrender
+# with --no-deps -> sanity check and a short summary.
 #
 # Environment: GENDR_PYTHON (default python3) picks the interpreter for a new .venv.
 # pip's own configuration (PIP_FIND_LINKS, pip.conf, ...) is respected as it is.
@@ -21,14 +22,17 @@ set -euo pipefail
 TORCH_VERSION="2.13.0"
 
 # Debian packages the project needs at run time (installed with apt-get, as root, only when one of
-# them is missing). Nothing from apt is required for the torch backend; later additions, per
-# shared/STACK.md:
-#   libllvm19                              Dr.Jit's / Mitsuba's LLVM (CPU) backend
-#   libosmesa6                             pyrender offscreen (PYOPENGL_PLATFORM=osmesa)
-#   libegl1 libegl-mesa0 libgl1-mesa-dri   pyrender with PYOPENGL_PLATFORM=egl
-#   libgl1 libopengl0                      `import pyrender` loads libGL even headless
+# them is missing), per shared/STACK.md. The torch backend alone needs none of them.
 APT_PACKAGES=(
+    libllvm19                               # Dr.Jit's / Mitsuba's LLVM (CPU) back end (LLVM 14-16 fail)
+    libosmesa6                              # pyrender offscreen (PYOPENGL_PLATFORM=osmesa)
+    libegl1 libegl-mesa0 libgl1-mesa-dri    # pyrender with PYOPENGL_PLATFORM=egl
+    libgl1 libopengl0                       # `import pyrender` loads libGL even headless
 )
+
+# pyrender 0.1.45 pins PyOpenGL==3.1.0, which fails on osmesa; the `validation` extra brings
+# PyOpenGL 3.1.10 and pyrender's other dependencies, and pyrender itself goes in with --no-deps.
+PYRENDER_VERSION="0.1.45"
 
 MIN_PYTHON="3.10"
 
@@ -51,7 +55,7 @@ cd "$ROOT"
 VENV="$ROOT/.venv"
 VPY="$VENV/bin/python"
 PYTHON="${GENDR_PYTHON:-python3}"
-EXTRAS="torch,meshes"
+EXTRAS="torch,drjit,validation,experiments,meshes"
 [[ $DEV == 1 ]] && EXTRAS="$EXTRAS,dev"
 START=$SECONDS
 LOG="$(mktemp "${TMPDIR:-/tmp}/gendr-install.XXXXXX")"
@@ -209,6 +213,13 @@ else
     echo "$stamp" >"$STAMP_FILE"
 fi
 
+# --- 3. pyrender without its PyOpenGL pin ----------------------------------------------------
+if [[ $(installed_version pyrender) == "$PYRENDER_VERSION" ]]; then
+    say "pyrender $PYRENDER_VERSION already installed"
+else
+    pip_install --no-deps "pyrender==$PYRENDER_VERSION"
+fi
+
 # ---------------------------------------------------------------------------------------------
 # sanity check + summary
 # ---------------------------------------------------------------------------------------------
@@ -219,11 +230,14 @@ import numpy, torch, gendr
 backends = sorted(ep.name for ep in metadata.entry_points(group="gendr.backends"))
 if "torch" not in backends:
     sys.exit(f"the torch backend is not registered (gendr.backends entry points: {backends})")
-import gendr_torch  # the backend imports
+for ep in metadata.entry_points(group="gendr.backends"):
+    ep.load()  # every registered backend imports
+import drjit, mitsuba, pyrender  # noqa: F401  (drjit finds libLLVM when its LLVM back end starts)
 print("[install.sh] ready:")
 print(f"  python  {platform.python_version()}  ({sys.executable})")
 print(f"  torch   {torch.__version__}  (cuda available: {torch.cuda.is_available()})")
 print(f"  numpy   {numpy.__version__}")
+print(f"  drjit   {drjit.__version__}   mitsuba {mitsuba.__version__}   pyrender {pyrender.__version__}")
 print(f"  gendr   {getattr(gendr, '__version__', '?')}  backends: {', '.join(backends)}")
 if sys.argv[1] == "1":
     import pytest

@@ -463,7 +463,70 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="examples:\n  gendr list distributions\n  gendr list grid | grep yager")
     p.add_argument("what", choices=("distributions", "tconorms", "scenes", "grid", "backends"))
     p.set_defaults(func=cmd_list)
+
+    # validate ----------------------------------------------------------------------------------
+    p = sub.add_parser(
+        "validate", formatter_class=_Formatter,
+        help="check hard-limit silhouettes against pyrender/Mitsuba and gradients against finite differences",
+        description="Run the validation (docs/validation.md): gendr's hard-limit silhouettes vs pyrender and "
+                    "Mitsuba 3 pixel by pixel, and AD gradients vs float64 central finite differences. Writes "
+                    "OUTDIR/report.html (self-contained) and OUTDIR/summary.json; exit status 1 if a check fails.",
+        epilog="examples:\n"
+               "  gendr validate --quick -o validation_report      # < 2 minutes\n"
+               "  gendr validate --full -o full_report --instances all\n"
+               "  gendr validate --instances 0,271 --scenes cube,torus --backends torch -o r")
+    p.add_argument("-o", "--output", default="validation_report", metavar="OUTDIR", help="directory to write into (default: %(default)s)")
+    mode = p.add_mutually_exclusive_group()
+    mode.add_argument("--quick", action="store_true", help="48x64, 7 scenes, 4 cameras, 7 limit instances, 6 gradient instances (default)")
+    mode.add_argument("--full", action="store_true", help="96x128, every scene and camera, all 47 limit instances, all gradient instances")
+    p.add_argument("--backends", default=None, metavar="A,B", help="backends to check (default: every one that imports)")
+    p.add_argument("--instances", default=None, metavar="SPEC",
+                   help="gradient-check instances of the paper grid: comma-separated indices, 'all' or 'quick'")
+    p.add_argument("--scenes", default=None, metavar="A,B", help="built-in scenes for the hard-limit check")
+    p.add_argument("--mesh", action="append", default=None, metavar="FILE", help="also check a mesh file (repeatable)")
+    p.add_argument("--references", default=None, metavar="A,B",
+                   help="pyrender-osmesa, pyrender-egl, mitsuba-scalar_rgb, mitsuba-llvm_ad_rgb (default: pyrender-osmesa,mitsuba-scalar_rgb)")
+    p.add_argument("--progress", action="store_true", help="show progress bars even when stderr is not a terminal")
+    p.set_defaults(func=_cmd_validate)
+
+    # gallery -----------------------------------------------------------------------------------
+    p = sub.add_parser(
+        "gallery", formatter_class=_Formatter,
+        help="regenerate the documentation figures (distributions, T-conorms, renders across tau)",
+        description="Write PNG figures for the docs: every distribution's CDF and density, a rendered triangle per "
+                    "distribution, T-conorm surfaces and renders across tau.",
+        epilog="examples:\n  gendr gallery -o docs/gallery")
+    p.add_argument("-o", "--output", default="docs/gallery", metavar="OUTDIR", help="directory (default: %(default)s)")
+    p.add_argument("--size", type=int, default=64, help="render size in pixels (default: %(default)s)")
+    p.set_defaults(func=_cmd_gallery)
+
+    # experiment (gendr_experiments, imported only when this command runs) ---------------------
+    p = sub.add_parser(
+        "experiment", add_help=False, prefix_chars="\0",  # every argument goes to gendr_experiments
+        help="the paper's experiments: shape, pose, sweep, figures, recon (`gendr experiment --help`)")
+    p.add_argument("experiment_args", nargs=argparse.REMAINDER)
+    p.set_defaults(func=cmd_experiment)
     return parser
+
+
+def cmd_experiment(args) -> int:
+    """``gendr experiment ...``: delegate to :func:`gendr_experiments.cli.main` (imported lazily)."""
+    try:
+        from gendr_experiments.cli import main as experiment_main
+    except ImportError as exc:
+        raise GendrError(f"gendr experiment needs the gendr_experiments package and its extra "
+                         f"(`pip install -e .[experiments]`): {exc}") from exc
+    return experiment_main(args.experiment_args or ["--help"])
+
+
+def _cmd_validate(args) -> int:
+    from gendr_validation.cli import validate_main  # lazy: needs the validation extra
+    return validate_main(args)
+
+
+def _cmd_gallery(args) -> int:
+    from gendr_validation.cli import gallery_main
+    return gallery_main(args)
 
 
 def _version() -> str:

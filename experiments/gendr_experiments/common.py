@@ -1,0 +1,215 @@
+"""Shared pieces of the experiments: instance selection, meshes, losses, geometry, provenance.
+
+Everything here works on torch tensors on the CPU (or the device of the inputs); the renderer is
+the public :class:`gendr.Renderer` with any registered backend (default ``"torch"``).
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import platform
+from functools import lru_cache
+
+import numpy as np
+import torch
+
+import gendr
+from gendr.errors import ParameterError
+
+__all__ = ["instance_from_config", "grid_instance", "make_renderer", "renderer_tau", "load_target_mesh",
+           "soft_iou_loss", "iou_loss_per_view", "mesh_laplacian", "laplacian_loss", "flatten_edges",
+           "flatten_loss", "rotation_angle_deg", "axis_angle_to_matrix", "config_hash", "versions",
+           "log_tau_schedule"]
+
+
+# ------------------------------------------------------------------------------------------------
+# instances
+# ------------------------------------------------------------------------------------------------
+
+@lru_cache(maxsize=1)
+def _grid():
+    return gendr.paper_grid()
+
+
+def grid_instance(index: int):
+    """Instance ``index`` of :func:`gendr.paper_grid` (0 <= index < 1242)."""
+    g = _grid()
+    if not (isinstance(index, int) and 0 <= index < len(g)):
+        raise ParameterError(f"instance index {index!r} must be an integer in [0, {len(g) - 1}]")
+    return g[index]
+
+
+def instance_from_config(cfg: dict):
+    """``(distribution, tconorm, label)`` from a config: ``instance`` (a grid index) or
+    ``distribution`` / ``tconorm`` as dicts of :func:`gendr.distribution` / :func:`gendr.tconorm`
+    keyword arguments (``{"name": "logistic", "squared": true}``) or plain names."""
+    if cfg.get("instance") is not None:
+        inst = grid_instance(int(cfg["instance"]))
+        return inst.distribution, inst.tconorm, inst.name
+    d, t = cfg.get("distribution", "logistic"), cfg.get("tconorm", "probabilistic")
+    dist = gendr.distribution(**d) if isinstance(d, dict) else gendr.distribution(d)
+    tcn = gendr.tconorm(**t) if isinstance(t, dict) else gendr.tconorm(t)
+    return dist, tcn, f"{dist.label()}|{tcn.label()}"
+
+
+def renderer_tau(width: float, squared: bool) -> float:
+    """The Renderer's ``tau`` for a blur *width* in screen units: ``width`` for plain distributions,
+    ``width**2`` for squared ones (their argument is d·|d|/τ), so both blur over the same distance."""
+    return float(width) ** 2 if squared else float(width)
+
+
+def make_renderer(dist, tcn, tau, image_size, *, backend="torch", eps=1e-4):
+    """A silhouette-only renderer (``blend=None``): alpha in channel 3."""
+    return gendr.Renderer(dist, tcn, tau=tau, image_size=image_size, backend=backend, eps=eps, blend=None)
+
+
+def load_target_mesh(name_or_path: str):
+    """A built-in scene (``gendr.scenes.SCENES``) or a mesh file scaled into the unit ball."""
+    from gendr import scenes
+    if name_or_path in scenes.SCENES:
+        return scenes.get_scene(name_or_path)
+    return scenes.normalize(scenes.load_mesh(name_or_path))
+
+
+# ------------------------------------------------------------------------------------------------
+# losses
+# ------------------------------------------------------------------------------------------------
+
+def iou_loss_per_view(pred: torch.Tensor, target: torch.Tensor, eps: float = 1e-6) -> torch.Tensor:
+    """``[B]`` soft IoU loss 1 − Σ(a·t)/Σ(a + t − a·t) of each view (sums over H, W)."""
+    dims = tuple(range(1, pred.dim()))
+    inter = (pred * target).sum(dims)
+    union = (pred + target - pred * target).sum(dims) + eps
+    return 1.0 - inter / union
+
+
+def soft_iou_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Soft IoU loss of silhouettes ``[B, H, W]``, computed per view and averaged over the views
+    (as SoftRas' ``neg_iou_loss``, which the paper's shape experiment uses)."""
+    return iou_loss_per_view(pred, target).mean()
+
+
+def mesh_edges(faces: np.ndarray) -> np.ndarray:
+    """``[E, 2]`` unique undirected edges (i < j) of a triangle mesh."""
+    f = np.asarray(faces)
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    e = np.sort(e, axis=1)
+    return np.unique(e, axis=0)
+
+
+def mesh_laplacian(num_vertices: int, faces: np.ndarray, dtype=torch.float32) -> torch.Tensor:
+    """Uniform graph Laplacian L = I − D⁻¹A as a dense ``[V, V]`` tensor (templates are small)."""
+    e = mesh_edges(faces)
+    A = np.zeros((num_vertices, num_vertices))
+    A[e[:, 0], e[:, 1]] = 1.0
+    A[e[:, 1], e[:, 0]] = 1.0
+    deg = A.sum(1, keepdims=True)
+    L = np.eye(num_vertices) - A / np.where(deg > 0, deg, 1.0)
+    return torch.tensor(L, dtype=dtype)
+
+
+def laplacian_loss(vertices: torch.Tensor, L: torch.Tensor) -> torch.Tensor:
+    """Σ_v ||(L x)_v||² (sum over vertices and coordinates; mean over a leading batch)."""
+    d = L @ vertices if vertices.dim() == 2 else torch.matmul(L, vertices)
+    return d.pow(2).sum((-1, -2)).mean()
+
+
+def flatten_edges(faces: np.ndarray):
+    """For every interior edge (shared by exactly two faces): ``(v0, v1, a, b)`` index arrays, the
+    edge's end points and the two opposite vertices."""
+    f = np.asarray(faces)
+    opp = {}
+    for tri in f:
+        for k in range(3):
+            i, j, o = int(tri[k]), int(tri[(k + 1) % 3]), int(tri[(k + 2) % 3])
+            opp.setdefault((min(i, j), max(i, j)), []).append(o)
+    rows = [(i, j, o[0], o[1]) for (i, j), o in opp.items() if len(o) == 2]
+    r = np.array(rows, dtype=np.int64).reshape(-1, 4)
+    return tuple(torch.tensor(r[:, k]) for k in range(4))
+
+
+def flatten_loss(vertices: torch.Tensor, edges, eps: float = 1e-6) -> torch.Tensor:
+    """Σ_edges (cos θ + 1)², θ the dihedral angle at the edge measured between the two faces (θ = π,
+    cos θ = −1, for a flat neighbourhood), as SoftRas' ``FlattenLoss``. ``vertices``: [V,3] or [B,V,3]."""
+    v0, v1, a, b = edges
+    x = vertices
+    p0, p1, pa, pb = x[..., v0, :], x[..., v1, :], x[..., a, :], x[..., b, :]
+    e = p1 - p0
+    e_len2 = (e * e).sum(-1, keepdim=True) + eps
+    # components of (pa − p0) and (pb − p0) orthogonal to the edge
+    ua, ub = pa - p0, pb - p0
+    ua = ua - (ua * e).sum(-1, keepdim=True) / e_len2 * e
+    ub = ub - (ub * e).sum(-1, keepdim=True) / e_len2 * e
+    cos = (ua * ub).sum(-1) / (ua.norm(dim=-1) * ub.norm(dim=-1) + eps)
+    out = (cos + 1.0).pow(2).sum(-1)
+    return out.mean() if out.dim() else out
+
+
+# ------------------------------------------------------------------------------------------------
+# rotations
+# ------------------------------------------------------------------------------------------------
+
+def axis_angle_to_matrix(w: torch.Tensor) -> torch.Tensor:
+    """Rodrigues: rotation vector ``w`` [3] (axis · angle in radians) -> ``[3, 3]``; smooth at 0."""
+    theta2 = (w * w).sum()
+    theta = torch.sqrt(theta2 + 1e-24)
+    K = torch.zeros(3, 3, dtype=w.dtype, device=w.device)
+    K = torch.stack([torch.stack([0 * w[0], -w[2], w[1]]),
+                     torch.stack([w[2], 0 * w[0], -w[0]]),
+                     torch.stack([-w[1], w[0], 0 * w[0]])])
+    small = theta2 < 1e-8
+    a = torch.where(small, 1 - theta2 / 6, torch.sin(theta) / theta)
+    b = torch.where(small, 0.5 - theta2 / 24, (1 - torch.cos(theta)) / (theta2 + 1e-24))
+    eye = torch.eye(3, dtype=w.dtype, device=w.device)
+    return eye + a * K + b * (K @ K)
+
+
+def rotation_angle_deg(Ra, Rb) -> float:
+    """Angular distance between two rotations: the angle of ``Ra·Rbᵀ``, arccos((tr − 1)/2), in degrees
+    (the geodesic distance on SO(3), 0..180)."""
+    Ra = np.asarray(Ra.detach().cpu() if isinstance(Ra, torch.Tensor) else Ra, dtype=np.float64)
+    Rb = np.asarray(Rb.detach().cpu() if isinstance(Rb, torch.Tensor) else Rb, dtype=np.float64)
+    c = (np.trace(Ra @ Rb.T) - 1.0) / 2.0
+    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+
+
+def random_rotation(rng: np.random.Generator) -> np.ndarray:
+    """A uniformly distributed rotation matrix (from a random unit quaternion)."""
+    q = rng.normal(size=4)
+    q /= np.linalg.norm(q)
+    w, x, y, z = q
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def rotation_about(axis, degrees: float) -> np.ndarray:
+    a = np.asarray(axis, dtype=np.float64)
+    a = a / np.linalg.norm(a)
+    return axis_angle_to_matrix(torch.tensor(a * math.radians(degrees), dtype=torch.float64)).numpy()
+
+
+def log_tau_schedule(step: int, steps: int, start: float, end: float) -> float:
+    """τ at ``step`` of ``steps``, decayed logarithmically (geometrically) from ``start`` to ``end``."""
+    if steps <= 1:
+        return float(start)
+    t = step / (steps - 1)
+    return float(math.exp(math.log(start) + t * (math.log(end) - math.log(start))))
+
+
+# ------------------------------------------------------------------------------------------------
+# provenance
+# ------------------------------------------------------------------------------------------------
+
+def config_hash(cfg: dict) -> str:
+    """Stable 16-hex-digit key of a config (canonical JSON: sorted keys, no whitespace)."""
+    text = json.dumps(cfg, sort_keys=True, separators=(",", ":"), default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+@lru_cache(maxsize=1)
+def versions() -> dict:
+    import gendr_experiments
+    return {"gendr": gendr.__version__, "gendr_experiments": gendr_experiments.__version__,
+            "torch": torch.__version__, "numpy": np.__version__, "python": platform.python_version()}

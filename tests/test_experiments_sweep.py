@@ -1,0 +1,87 @@
+"""gendr_experiments.sweep: rows on disk, resume, the best-setting search, pool == Dask LocalCluster."""
+import json
+
+import pytest
+
+from gendr_experiments.sweep import (ResultStore, best_setting_search, execute, expand, fine_grid, load_rows,
+                                     run_config, summarize_best, write_csv)
+
+# a tiny shape problem: ~0.1 s per run
+TINY = dict(target="tetrahedron", steps=3, image_size=12, views=2, subdivisions=1)
+
+
+def _configs():
+    return expand("shape", TINY, instances=[5, 59], axes={"tau": [0.1, 0.02], "lr": [0.05]})
+
+
+def test_expand_and_keys():
+    cfgs = _configs()
+    assert len(cfgs) == 4
+    assert {c["instance"] for c in cfgs} == {5, 59}
+    assert all(c["experiment"] == "shape" and c["steps"] == 3 for c in cfgs)
+    with pytest.raises(ValueError, match="unknown shape config keys"):
+        expand("shape", {"stepz": 3})
+
+
+def test_run_config_row_fields():
+    row = run_config(_configs()[0])
+    assert row["status"] == "ok", row.get("error")
+    for k in ("key", "label", "distribution", "squared", "tconorm", "tau", "lr", "seed", "metric", "seconds",
+              "versions", "config", "finished_at"):
+        assert k in row
+    assert row["label"] == "uniform|probabilistic" if row["instance"] == 1 else "|" in row["label"]
+    assert 0.0 <= row["metric"] <= 1.0
+    json.dumps(row, allow_nan=False)
+
+
+def test_errors_become_rows(tmp_path):
+    cfg = expand("shape", dict(TINY, target="no_such_mesh.obj"), instances=[5])
+    rows = execute(cfg, tmp_path / "r.jsonl", workers=0, progress=False)
+    assert rows[0]["status"] == "error" and rows[0]["metric"] is None
+
+
+def test_sweep_writes_rows_and_resumes(tmp_path, capsys):
+    path = tmp_path / "sweep.jsonl"
+    cfgs = _configs()
+    rows = execute(cfgs[:3], path, workers=0)  # "interrupted" after 3 of 4
+    assert len(rows) == 3 and len(path.read_text().splitlines()) == 3
+    assert "3/3" in capsys.readouterr().err  # the progress bar
+    # a torn last line (killed while writing) is ignored and does not break the next append
+    with open(path, "a") as f:
+        f.write('{"key": "torn", "metr')
+    rows = execute(cfgs, path, workers=0)
+    assert len(rows) == 4
+    assert len(load_rows(path)) == 4
+    assert "1/1 (skipped 3 finished)" in capsys.readouterr().err
+    n = len(path.read_text().splitlines())
+    again = execute(cfgs, path, workers=0)  # nothing left to do
+    assert len(path.read_text().splitlines()) == n
+    assert [r["metric"] for r in again] == [r["metric"] for r in rows]
+    write_csv(again, tmp_path / "sweep.csv")
+    assert (tmp_path / "sweep.csv").read_text().count("\n") == 5
+
+
+def test_best_setting_search_refines_tau(tmp_path):
+    store = tmp_path / "s.jsonl"
+    best = best_setting_search("shape", [5], taus=[0.1, 0.01], lrs=[0.05], base=TINY, store=store,
+                               workers=0, progress=False, fine_steps=(-0.25, 0.25))
+    rows = load_rows(store)
+    assert len(rows) == 4  # 2 coarse + 2 fine
+    taus = sorted(r["tau"] for r in rows)
+    coarse_best = min((r for r in rows if r["tau"] in (0.1, 0.01)), key=lambda r: r["metric"])["tau"]
+    assert set(fine_grid(coarse_best, (-0.25, 0.25))) <= set(taus)
+    assert best[5]["score"] == min(r["metric"] for r in rows)
+    assert summarize_best(rows) == best
+
+
+def test_pool_and_dask_localcluster_give_identical_metrics(tmp_path):
+    distributed = pytest.importorskip("distributed")
+    cfgs = _configs() + expand("pose", dict(steps=3, image_size=12), instances=[5], axes={"seed": [0, 1]})
+    pool = execute(cfgs, tmp_path / "pool.jsonl", workers=2, progress=False)
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
+                                  dashboard_address=None) as cluster, distributed.Client(cluster) as client:
+        dask = execute(cfgs, tmp_path / "dask.jsonl", scheduler=client, progress=False)
+    assert all(r["status"] == "ok" for r in pool + dask)
+    assert [r["key"] for r in pool] == [r["key"] for r in dask]
+    assert [r["metric"] for r in pool] == [r["metric"] for r in dask]
+    assert {r["experiment"] for r in pool} == {"shape", "pose"}

@@ -1,0 +1,299 @@
+"""Gradient check: reverse-mode derivatives vs central finite differences, in float64 (DESIGN.md §6).
+
+For an instance of ``gendr.paper_grid()`` and a parameter family θ (vertex positions, camera pose,
+τ), a random unit direction u gives a one-parameter image f(t) = render(θ + t·u). We compare
+
+* per pixel (all 4 channels): the AD directional derivative J·u with the central difference
+  (f(t + h/2) − f(t − h/2)) / h;
+* a scalar loss L = Σ w ⊙ f with fixed random weights w: ∇L·u by AD vs the central difference of L.
+
+Error metric: |a − r| / max(|r|, floor) (Mitsuba's AD tests), with thresholds on the mean and the
+max over pixels (:data:`THRESHOLDS`). The step sizes are recorded with every result.
+
+Per-pixel AD derivatives from reverse mode: the renderer's batch dimension holds one copy of the
+scene per (pixel, channel) output; copy b is moved by its own scalar t_b and contributes only its
+output b to the loss, so ONE backward pass gives every per-pixel derivative ∂f_b/∂t_b (vertices and
+camera pose batch; τ is a single scalar per render, so its per-pixel derivatives take one backward
+pass per output — done on a few sampled outputs only).
+
+Gradients are backend specific: :data:`ADAPTERS` holds one adapter per backend (torch now). A backend
+without an adapter is skipped with a note. The T-conorm parameter p is not differentiable: the spec
+validates it as a Python float (``gendr.tconorm("yager", p=tensor)`` raises ParameterError), so no
+gradient w.r.t. p exists to check.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+import gendr
+from gendr.scenes import icosphere
+
+H_DEFAULT, W_DEFAULT = 8, 12
+TAU = 0.08          # screen units (1 unit = H/2 px): ~0.3 px at 8 px high
+TAU_SQUARED = TAU ** 2
+STEPS = {"vertices": 1e-6, "vertices_unlit": 1e-6, "camera": 1e-5, "tau": 1e-7}  # h, in units of the direction (τ: relative)
+FLOOR = 1e-3
+THRESHOLDS = {"pixel_mean": 1e-4, "pixel_max": 1e-2, "loss": 1e-5}
+PARAMS = ("vertices", "vertices_unlit", "camera", "tau")
+#: shading per checked parameter: "vertices_unlit" moves vertices with ambient=1, diffuse=0 (no
+#: normal-dependent colour), separating silhouette/blend gradients from the Lambert-shading path
+UNLIT = {"ambient": 1.0, "diffuse": 0.0}
+#: lit checks use a light in general position: with the default light (0, 0, −1) the scene's vertices
+#: on its z = 0 plane of symmetry have normals exactly on the Lambert kink max(0, n·l) = 0, where
+#: autograd returns a one-sided derivative and central differences the average of both sides
+LIT = {"light_direction": (0.31, -0.47, -0.83)}
+TAU_SAMPLES = 12  # per-pixel τ derivatives: outputs sampled (one backward pass each)
+PIXEL_SAMPLES = 16  # per-pixel checks use the outputs with the largest |FD| (half) + random ones
+
+
+def grid_scene():
+    """The gradient-check scene: an icosphere (80 faces) slightly squashed, off-centre."""
+    m = icosphere(1)
+    return gendr.scenes.Mesh(m.vertices * np.array([0.9, 0.75, 0.8]) + np.array([0.08, -0.05, 0.0]), m.faces)
+
+
+def rel_error(a, r, floor=FLOOR):
+    return np.abs(a - r) / np.maximum(np.abs(r), floor)
+
+
+# ------------------------------------------------------------------------------------------------
+class TorchAdapter:
+    """Reverse-mode derivatives through torch autograd: the torch backend, or any backend that takes
+    and returns torch tensors with gradients (the drjit backend does, through ``dr.wrap``)."""
+
+    def __init__(self, backend="torch"):
+        import torch
+        self.torch = torch
+        self.name = backend
+
+    def _renderer(self, inst, tau, H, W, shading=None):
+        return gendr.Renderer(inst.distribution, inst.tconorm, tau=tau, image_size=(H, W), backend=self.name,
+                              eps=0.0, blend="softmax", gamma=0.05, max_pairs=1 << 20, **(shading or {}))
+
+    def render(self, inst, mesh, cam_params, tau, H, W, verts=None, shading=None):
+        """Image [H, W, 4] as NumPy float64 (no gradients)."""
+        torch = self.torch
+        r = self._renderer(inst, tau, H, W, shading)
+        v = mesh.vertices if verts is None else verts
+        img = r.render(torch.as_tensor(v, dtype=torch.float64), mesh.faces, _camera(cam_params))
+        return img.detach().numpy()[0]
+
+    def per_pixel(self, inst, mesh, cam_params, tau, H, W, param, direction, index, shading=None):
+        """d image.flat[index] / dt along ``direction`` for param vertices|camera (one backward pass)."""
+        torch = self.torch
+        n = len(index)
+        t = torch.zeros(n, dtype=torch.float64, requires_grad=True)
+        v0 = torch.as_tensor(mesh.vertices, dtype=torch.float64)
+        r = self._renderer(inst, tau, H, W, shading)
+        if param.startswith("vertices"):
+            u = torch.as_tensor(direction, dtype=torch.float64)
+            verts = v0[None] + t[:, None, None] * u[None]
+            cam = _camera(cam_params)
+        else:
+            u = direction
+            verts = v0
+            az = cam_params["azimuth"] + t * u[0]
+            el = cam_params["elevation"] + t * u[1]
+            dist = cam_params["distance"] + t * u[2]
+            cam = gendr.orbit_camera(az, el, dist, fov_y=cam_params["fov_y"])
+        img = r.render(verts, mesh.faces, cam)  # [n, H, W, 4]: copy b -> output index[b]
+        sel = img.reshape(n, -1)[torch.arange(n), torch.as_tensor(np.asarray(index), dtype=torch.long)]
+        sel.sum().backward()
+        return t.grad.numpy().copy()
+
+    def loss_grad(self, inst, mesh, cam_params, tau, H, W, weights, param, direction, shading=None):
+        """∇L · direction for L = Σ weights ⊙ image."""
+        torch = self.torch
+        v = torch.tensor(mesh.vertices, dtype=torch.float64, requires_grad=param.startswith("vertices"))
+        cp = {k: (torch.tensor(float(val), dtype=torch.float64, requires_grad=(param == "camera"))
+                  if k != "fov_y" else val) for k, val in cam_params.items()}
+        tt = torch.tensor(float(tau), dtype=torch.float64, requires_grad=(param == "tau"))
+        r = self._renderer(inst, tt, H, W, shading)
+        img = r.render(v, mesh.faces, gendr.orbit_camera(cp["azimuth"], cp["elevation"], cp["distance"],
+                                                         fov_y=cp["fov_y"]))
+        L = (img[0] * torch.as_tensor(weights)).sum()
+        L.backward()
+        if param.startswith("vertices"):
+            return float((v.grad.numpy() * direction).sum())
+        if param == "camera":
+            return float(sum(cp[k].grad.item() * direction[i] for i, k in enumerate(("azimuth", "elevation", "distance"))))
+        return float(tt.grad.item() * direction)
+
+    def tau_outputs(self, inst, mesh, cam_params, tau, H, W, index, shading=None):
+        """d image[index] / dτ for a few flat output indices (one backward each)."""
+        torch = self.torch
+        out = []
+        tt = torch.tensor(float(tau), dtype=torch.float64, requires_grad=True)
+        r = self._renderer(inst, tt, H, W, shading)
+        img = r.render(torch.as_tensor(mesh.vertices, dtype=torch.float64), mesh.faces, _camera(cam_params))
+        flat = img[0].reshape(-1)
+        for k in index:
+            g, = torch.autograd.grad(flat[int(k)], tt, retain_graph=True)
+            out.append(float(g))
+        return np.array(out)
+
+
+def _camera(p):
+    return gendr.orbit_camera(p["azimuth"], p["elevation"], p["distance"], fov_y=p["fov_y"])
+
+
+ADAPTERS = {"torch": lambda: TorchAdapter("torch"), "drjit": lambda: TorchAdapter("drjit")}
+
+
+# ------------------------------------------------------------------------------------------------
+@dataclass
+class GradResult:
+    backend: str
+    instance: int
+    name: str
+    param: str
+    step: float
+    pixel_mean: float
+    pixel_max: float
+    loss_ad: float
+    loss_fd: float
+    loss_err: float
+    max_abs_fd: float
+    seconds: float
+
+    @property
+    def passed(self) -> bool:
+        return (self.pixel_mean <= THRESHOLDS["pixel_mean"] and self.pixel_max <= THRESHOLDS["pixel_max"]
+                and self.loss_err <= THRESHOLDS["loss"] and math.isfinite(self.loss_ad))
+
+
+def check_instance(adapter, inst, *, H=H_DEFAULT, W=W_DEFAULT, seed=0, params=PARAMS, keep_images=False):
+    """Gradient check of one grid instance; returns ([GradResult], images for the report or None)."""
+    mesh = grid_scene()
+    rng = np.random.default_rng(seed + 7919 * inst.index)
+    tau = TAU_SQUARED if inst.distribution.squared else TAU
+    cam = {"azimuth": 25.0, "elevation": 15.0, "distance": 3.0, "fov_y": 40.0}
+    weights = rng.standard_normal((H, W, 4))
+    results, images = [], {}
+    for param in params:
+        t0 = time.perf_counter()
+        h = STEPS[param]
+        shading = UNLIT if param == "vertices_unlit" else LIT
+        if param.startswith("vertices"):
+            u = rng.standard_normal(mesh.vertices.shape)
+            u /= np.abs(u).max()
+            fp = adapter.render(inst, mesh, cam, tau, H, W, verts=mesh.vertices + h / 2 * u, shading=shading)
+            fm = adapter.render(inst, mesh, cam, tau, H, W, verts=mesh.vertices - h / 2 * u, shading=shading)
+            fd_full = (fp - fm) / h
+            idx = _sample_outputs(fd_full, rng)
+            ad = _scatter(adapter.per_pixel(inst, mesh, cam, tau, H, W, param, u, idx, shading), idx, fd_full.shape)
+        elif param == "camera":
+            u = rng.standard_normal(3)
+            u /= np.abs(u).max()
+            u *= np.array([1.0, 1.0, 0.05])  # degrees, degrees, world units
+            shift = lambda s: {**cam, "azimuth": cam["azimuth"] + s * u[0], "elevation": cam["elevation"] + s * u[1],
+                               "distance": cam["distance"] + s * u[2]}
+            fp = adapter.render(inst, mesh, shift(h / 2), tau, H, W, shading=shading)
+            fm = adapter.render(inst, mesh, shift(-h / 2), tau, H, W, shading=shading)
+            fd_full = (fp - fm) / h
+            idx = _sample_outputs(fd_full, rng)
+            ad = _scatter(adapter.per_pixel(inst, mesh, cam, tau, H, W, param, u, idx, shading), idx, fd_full.shape)
+        else:
+            u = tau  # relative step: d/dt f(τ + t·τ)
+            fp = adapter.render(inst, mesh, cam, tau * (1 + h / 2), H, W, shading=shading)
+            fm = adapter.render(inst, mesh, cam, tau * (1 - h / 2), H, W, shading=shading)
+            fd_full = (fp - fm) / h
+            idx = np.argsort(-np.abs(fd_full).reshape(-1))[:TAU_SAMPLES]
+            ad_s = adapter.tau_outputs(inst, mesh, cam, tau, H, W, idx, shading) * tau
+            ad = np.full(H * W * 4, np.nan)
+            ad[idx] = ad_s
+            ad = ad.reshape(H, W, 4)
+        fd = (fp - fm) / h
+        mask = np.isfinite(ad)
+        err = rel_error(ad[mask], fd[mask])
+        loss_fd = float(((fp - fm) * weights).sum() / h)
+        loss_ad = adapter.loss_grad(inst, mesh, cam, tau, H, W, weights, param, u, shading)
+        loss_err = abs(loss_ad - loss_fd) / max(abs(loss_fd), FLOOR)
+        dt = time.perf_counter() - t0
+        results.append(GradResult(adapter.name, inst.index, inst.name, param, h, float(err.mean()), float(err.max()),
+                                  loss_ad, loss_fd, float(loss_err), float(np.abs(fd).max()), dt))
+        if keep_images:
+            images[param] = (fp, ad, fd)
+    return results, (images if keep_images else None)
+
+
+def _sample_outputs(fd, rng):
+    flat = np.abs(fd).reshape(-1)
+    k = min(PIXEL_SAMPLES // 2, flat.size)
+    top = np.argsort(-flat, kind="stable")[:k]
+    rest = np.setdiff1d(np.arange(flat.size), top)
+    extra = rng.choice(rest, size=min(PIXEL_SAMPLES - k, rest.size), replace=False)
+    return np.concatenate([top, extra])
+
+
+def _scatter(values, idx, shape):
+    out = np.full(int(np.prod(shape)), np.nan)
+    out[idx] = values
+    return out.reshape(shape)
+
+
+def differentiable_instances():
+    return [i for i in gendr.paper_grid() if i.distribution.differentiable and i.tconorm.differentiable]
+
+
+#: the quick set: one instance per kind of distribution and aggregation that runs fast
+QUICK_NAMES = ("uniform|max", "logistic|probabilistic", "gaussian|einstein", "cauchy|yager(p=2)",
+               "exponential+rev|probabilistic", "uniform+sq|probabilistic")
+
+
+def select_instances(spec):
+    """``spec``: "all", "quick" (a spread of distributions × T-conorms), or a list/comma string of indices."""
+    grid = differentiable_instances()
+    by_index = {i.index: i for i in grid}
+    if spec in (None, "quick"):
+        return [i for i in grid if i.name in QUICK_NAMES]
+    if spec == "all":
+        return grid
+    if isinstance(spec, str):
+        spec = [s for s in spec.split(",") if s.strip()]
+    out = []
+    for s in spec:
+        try:
+            k = int(s)
+        except (TypeError, ValueError):
+            raise gendr.ParameterError(f"instance {s!r} must be an integer index of gendr.paper_grid(), 'all' or 'quick'") from None
+        if k not in by_index:
+            raise gendr.ParameterError(f"instance index {k} is not a differentiable instance of gendr.paper_grid() (0..1241)")
+        out.append(by_index[k])
+    return out
+
+
+PARITY_TOL = 1e-9  # float64 forward images of two backends
+
+
+def backend_parity(backends, instances, H=H_DEFAULT, W=W_DEFAULT):
+    """Forward images of every instance on every backend vs the first backend: max abs difference."""
+    if len(backends) < 2:
+        return []
+    mesh = grid_scene()
+    cam = gendr.orbit_camera(25.0, 15.0, 3.0)
+    out = []
+    for inst in instances:
+        tau = TAU_SQUARED if inst.distribution.squared else TAU
+        imgs = {}
+        for b in backends:
+            try:
+                r = gendr.Renderer(inst.distribution, inst.tconorm, tau=tau, image_size=(H, W), backend=b, eps=0.0,
+                                   blend="softmax", gamma=0.05)
+                imgs[b] = np.asarray(r.to_numpy(r.render(mesh.vertices, mesh.faces, cam)), dtype=np.float64)
+            except Exception as e:
+                imgs[b] = f"{type(e).__name__}: {e}"[:300]
+        ref = imgs[backends[0]]
+        for b in backends[1:]:
+            row = {"instance": inst.index, "name": inst.name, "backends": f"{backends[0]} vs {b}"}
+            if isinstance(ref, str) or isinstance(imgs[b], str):
+                row.update(max_abs_diff=float("nan"), error=ref if isinstance(ref, str) else imgs[b], passed=False)
+            else:
+                d = float(np.abs(imgs[b] - ref).max())
+                row.update(max_abs_diff=d, passed=d <= PARITY_TOL)
+            out.append(row)
+    return out

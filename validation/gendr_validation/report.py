@@ -1,0 +1,314 @@
+"""``gendr validate``: run the hard-limit and gradient checks and write an HTML report + JSON summary.
+
+The HTML page is self-contained (images inline as base64 PNGs, plots from matplotlib). The JSON
+summary holds every count and error. The exit status is 0 only when every check passed.
+"""
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+import os
+import sys
+import time
+from dataclasses import asdict
+
+import numpy as np
+
+import gendr
+from gendr import scenes as gscenes
+
+from . import gradcheck, hardlimit
+
+QUICK_SCENES = ("icosphere", "cube", "torus", "thin_shape", "teapot_like", "open_mesh", "degenerate_mesh")
+QUICK_SIZE = (48, 64)
+FULL_SIZE = (96, 128)
+
+
+class Progress:
+    """A one-line progress bar on stderr (only when it is a terminal or forced)."""
+
+    def __init__(self, total, label, stream=None, enabled=None):
+        self.total, self.done, self.label = max(total, 1), 0, label
+        self.stream = stream or sys.stderr
+        self.enabled = self.stream.isatty() if enabled is None else enabled
+        self.t0 = time.perf_counter()
+
+    def __call__(self, n=1):
+        self.done += n
+        if self.enabled:
+            frac = self.done / self.total
+            bar = "#" * int(30 * frac)
+            self.stream.write(f"\r{self.label:10s} [{bar:30s}] {self.done}/{self.total} {time.perf_counter() - self.t0:6.1f}s")
+            if self.done >= self.total:
+                self.stream.write("\n")
+            self.stream.flush()
+
+
+def _png_b64(img) -> str:
+    """A float image in [0, 1] ([H, W] or [H, W, 3|4]) as a base64 PNG (nearest-neighbour upscaled)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    a = np.clip(np.asarray(img, dtype=np.float64), 0, 1)
+    scale = max(1, 128 // a.shape[0])
+    a = np.repeat(np.repeat(a, scale, 0), scale, 1)
+    buf = io.BytesIO()
+    plt.imsave(buf, a, cmap="gray" if a.ndim == 2 else None, vmin=0, vmax=1, format="png")
+    return base64.b64encode(buf.getvalue()).decode()
+
+
+def _diff_image(ours, ref, amb):
+    """RGB: white = both, red = only ours, blue = only the reference, yellow = differing but ambiguous."""
+    out = np.zeros(ours.shape + (3,))
+    both = ours & ref
+    out[both] = 0.55
+    only_o, only_r = ours & ~ref, ref & ~ours
+    out[only_o & ~amb] = (1, 0, 0)
+    out[only_r & ~amb] = (0, 0.4, 1)
+    out[(only_o | only_r) & amb] = (1, 1, 0)
+    return out
+
+
+def _plot_b64(fig) -> str:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=80, bbox_inches="tight")
+    import matplotlib.pyplot as plt
+    plt.close(fig)
+    return base64.b64encode(buf.getvalue()).decode()
+
+
+def _grad_plot(grad_results):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.2))
+    params = sorted({r.param for r in grad_results})
+    for k, p in enumerate(params):
+        rs = [r for r in grad_results if r.param == p]
+        x = [r.instance for r in rs]
+        axes[0].scatter(x, [max(r.pixel_max, 1e-16) for r in rs], s=10, label=p)
+        axes[1].scatter(x, [max(r.loss_err, 1e-16) for r in rs], s=10, label=p)
+    for ax, title, thr in ((axes[0], "per-pixel max rel. error", gradcheck.THRESHOLDS["pixel_max"]),
+                           (axes[1], "scalar-loss rel. error", gradcheck.THRESHOLDS["loss"])):
+        ax.set_yscale("log")
+        ax.axhline(thr, color="k", ls="--", lw=0.8)
+        ax.set_title(title)
+        ax.set_xlabel("grid instance")
+    axes[0].legend(fontsize=7)
+    return _plot_b64(fig)
+
+
+def run(backends=None, instances="quick", scenes=None, quick=True, outdir="validation_report", references=None,
+        limit_instances=None, size=None, cameras=None, mesh_files=(), progress=None, stream=None):
+    """Run everything and write ``outdir/report.html`` and ``outdir/summary.json``. Returns the summary dict."""
+    stream = stream or sys.stdout
+    t_start = time.perf_counter()
+    notes = []
+    os.makedirs(outdir, exist_ok=True)
+    bnames = hardlimit.usable_backends(backends, notes)
+    refs = hardlimit.open_references(hardlimit.DEFAULT_REFERENCES if references is None else references, notes)
+    H, W = size or (QUICK_SIZE if quick else FULL_SIZE)
+    scene_names = list(scenes) if scenes else list(QUICK_SCENES if quick else gscenes.SCENES)
+    meshes = {}
+    for s in scene_names:
+        meshes[s] = gscenes.get_scene(s)
+    for path in mesh_files:
+        meshes[os.path.basename(path)] = gscenes.normalize(gscenes.load_mesh(path), 0.95)
+    lim = hardlimit.limit_instances(limit_instances or ("quick" if quick else "all"))
+    cams_all = hardlimit.standard_cameras(H, W)
+    cam_names = list(cameras) if cameras else list(hardlimit.QUICK_CAMERAS if quick else cams_all)
+    ginst = gradcheck.select_instances(instances)
+
+    # --- hard limit -----------------------------------------------------------------------------
+    n_hl = len(meshes) * len(cam_names) * len(bnames) * len(lim)
+    prog = Progress(n_hl, "hard-limit", enabled=progress)
+    checks = []
+    t0 = time.perf_counter()
+    for s, mesh in meshes.items():
+        for cn in cam_names:
+            checks.append(hardlimit.check_scene_camera(s, mesh, cn, cams_all[cn], H, W, bnames, refs, lim, prog))
+    t_hl = time.perf_counter() - t0
+
+    # --- gradients -----------------------------------------------------------------------------
+    grad_results, grad_images = [], {}
+    gb = [b for b in bnames if b in gradcheck.ADAPTERS]
+    for b in bnames:
+        if b not in gradcheck.ADAPTERS:
+            notes.append(f"gradient check: no gradient adapter for backend {b!r} (validation/gendr_validation/gradcheck.py ADAPTERS)")
+    prog = Progress(len(gb) * len(ginst), "gradients", enabled=progress)
+    t0 = time.perf_counter()
+    for b in gb:
+        ad = gradcheck.ADAPTERS[b]()
+        for k, inst in enumerate(ginst):
+            res, imgs = gradcheck.check_instance(ad, inst, keep_images=(k < 3))
+            grad_results += res
+            if imgs:
+                grad_images[(b, inst.index)] = imgs
+            prog()
+    parity = gradcheck.backend_parity(bnames, ginst)
+    t_grad = time.perf_counter() - t0
+
+    # --- summary -------------------------------------------------------------------------------
+    hl_rows = [asdict(r) | {"passed": r.passed} for c in checks for r in c.results]
+    table = {}
+    for r in (r for c in checks for r in c.results):
+        key = (r.scene, r.camera, r.backend, r.reference)
+        e = table.setdefault(key, {"instances": 0, "failed_instances": 0, "differ_unambiguous": 0,
+                                   "differ_ambiguous": 0, "ambiguous": r.ambiguous})
+        e["instances"] += 1
+        e["failed_instances"] += int(not r.passed)
+        e["differ_unambiguous"] += max(r.differ_unambiguous, 0)
+        e.setdefault("errors", 0)
+        e["errors"] += int(bool(r.error))
+        e["differ_ambiguous"] += r.differ_ambiguous
+    rvr = [{"scene": c.scene, "camera": c.camera, "pair": k, **v} for c in checks for k, v in c.ref_vs_ref.items()]
+    summary = {
+        "gendr_version": gendr.__version__, "mode": "quick" if quick else "full", "image_size": [H, W],
+        "backends": bnames, "references": list(refs), "scenes": list(meshes), "cameras": cam_names,
+        "limit_instances": [x[0] for x in lim], "tiny_tau": hardlimit.TINY_TAU,
+        "tiny_tau_squared": hardlimit.TINY_TAU_SQUARED, "ambiguity_px": hardlimit.AMBIGUITY_PX,
+        "hard_limit": {
+            "checks": len(hl_rows), "failed": sum(not r["passed"] for r in hl_rows),
+            "differ_unambiguous_total": sum(max(r["differ_unambiguous"], 0) for r in hl_rows),
+            "differ_ambiguous_total": sum(r["differ_ambiguous"] for r in hl_rows),
+            "table": [{"scene": k[0], "camera": k[1], "backend": k[2], "reference": k[3], **v} for k, v in table.items()],
+            "reference_vs_reference": rvr, "rows": hl_rows, "seconds": t_hl},
+        "gradients": {
+            "instances": [i.index for i in ginst], "checks": len(grad_results),
+            "failed": sum(not r.passed for r in grad_results), "thresholds": gradcheck.THRESHOLDS,
+            "floor": gradcheck.FLOOR, "steps": gradcheck.STEPS, "image_size": [gradcheck.H_DEFAULT, gradcheck.W_DEFAULT],
+            "tau": gradcheck.TAU, "tau_squared": gradcheck.TAU_SQUARED,
+            "rows": [asdict(r) | {"passed": r.passed} for r in grad_results], "backend_parity": parity,
+            "seconds": t_grad,
+            "note": "T-conorm parameter p is not differentiable in the spec (validated as a Python float)"},
+        "notes": notes,
+    }
+    summary["gradients"]["parity_failed"] = sum(not r["passed"] for r in parity)
+    summary["passed"] = (summary["hard_limit"]["failed"] == 0 and summary["gradients"]["failed"] == 0
+                         and summary["gradients"]["parity_failed"] == 0 and bool(bnames) and bool(refs))
+    summary["seconds"] = time.perf_counter() - t_start
+    with open(os.path.join(outdir, "summary.json"), "w") as f:
+        json.dump(summary, f, indent=1, default=float)
+    with open(os.path.join(outdir, "report.html"), "w") as f:
+        f.write(_html(summary, checks, grad_results, grad_images, lim))
+    print_summary(summary, stream)
+    return summary
+
+
+def _html(summary, checks, grad_results, grad_images, lim):
+    e = html.escape
+    ok = lambda b: '<span class="ok">pass</span>' if b else '<span class="fail">FAIL</span>'
+    out = [f"""<!DOCTYPE html><html><head><meta charset="utf-8"><title>gendr validation report</title>
+<style>body{{font-family:sans-serif;margin:20px}} table{{border-collapse:collapse;font-size:12px}}
+td,th{{border:1px solid #bbb;padding:2px 6px}} .ok{{color:#080;font-weight:bold}} .fail{{color:#c00;font-weight:bold}}
+img{{image-rendering:pixelated;margin:2px}} figure{{display:inline-block;margin:4px;text-align:center;font-size:11px}}</style>
+</head><body><h1>gendr validation report</h1>
+<p>Overall: {ok(summary['passed'])} &middot; mode {e(summary['mode'])} &middot; image {summary['image_size'][0]}x{summary['image_size'][1]}
+&middot; backends {e(', '.join(summary['backends']))} &middot; references {e(', '.join(summary['references']))}
+&middot; {summary['seconds']:.1f} s</p>"""]
+    if summary["notes"]:
+        out.append("<h3>Notes</h3><ul>" + "".join(f"<li>{e(n)}</li>" for n in summary["notes"]) + "</ul>")
+    hl = summary["hard_limit"]
+    out.append(f"""<h2>1. Hard limit vs references</h2>
+<p>gendr's binary silhouettes (heaviside + logical or, and every listed distribution at τ → 0 with the
+probabilistic T-conorm, thresholded at alpha &ge; 1/2; τ = {summary['tiny_tau']:g}, squared τ = {summary['tiny_tau_squared']:g})
+vs each reference, pixel by pixel. Pixels whose centre lies within δ of a projected edge are ambiguous
+(δ per reference: {e(json.dumps(summary['ambiguity_px']))} px). {hl['checks']} comparisons, {hl['failed']} failed,
+{hl['differ_unambiguous_total']} unambiguous pixels differ in total ({hl['differ_ambiguous_total']} ambiguous ones).</p>
+<table><tr><th>scene</th><th>camera</th><th>backend</th><th>reference</th><th>instances</th><th>failed</th>
+<th>unambiguous differing px (sum)</th><th>ambiguous differing px</th><th>ambiguous px</th><th>render errors</th></tr>""")
+    for r in hl["table"]:
+        out.append(f"<tr><td>{e(r['scene'])}</td><td>{e(r['camera'])}</td><td>{e(r['backend'])}</td><td>{e(r['reference'])}</td>"
+                   f"<td>{r['instances']}</td><td>{ok(r['failed_instances'] == 0)} {r['failed_instances']}</td>"
+                   f"<td>{r['differ_unambiguous']}</td><td>{r['differ_ambiguous']}</td><td>{r['ambiguous']}</td><td>{r['errors']}</td></tr>")
+    out.append("</table><h3>Reference vs reference</h3><table><tr><th>scene</th><th>camera</th><th>pair</th>"
+               "<th>unambiguous differing px</th><th>ambiguous differing</th><th>max |depth difference|</th></tr>")
+    for r in hl["reference_vs_reference"]:
+        out.append(f"<tr><td>{e(r['scene'])}</td><td>{e(r['camera'])}</td><td>{e(r['pair'])}</td>"
+                   f"<td>{r['differ_unambiguous']}</td><td>{r['differ_ambiguous']}</td><td>{r['depth_max_abs_diff']:.2e}</td></tr>")
+    out.append("</table><h3>Images</h3><p>Per scene &times; camera: each reference's mask, gendr's heaviside|or "
+               "silhouette and a difference image (grey: both, red: only gendr, blue: only the reference, yellow: "
+               "differing but ambiguous); failing instances are shown too.</p>")
+    for c in checks:
+        out.append(f"<h4>{e(c.scene)} / {e(c.camera)}</h4><div>")
+        for rname, (mask, depth) in c.refs.items():
+            out.append(f'<figure><img src="data:image/png;base64,{_png_b64(mask.astype(float))}"><figcaption>{e(rname)}</figcaption></figure>')
+            dn = depth / depth.max() if depth.max() > 0 else depth
+            out.append(f'<figure><img src="data:image/png;base64,{_png_b64(dn)}"><figcaption>{e(rname)} depth</figcaption></figure>')
+        shown_alpha = set()
+        for r in c.results:
+            if (r.instance != "heaviside|or" and r.passed) or r.error:
+                continue
+            if (r.backend, r.instance) not in shown_alpha:
+                shown_alpha.add((r.backend, r.instance))
+                out.append(f'<figure><img src="data:image/png;base64,{_png_b64(c.alphas[(r.backend, r.instance)])}">'
+                           f"<figcaption>gendr {e(r.backend)} {e(r.instance)}</figcaption></figure>")
+            ours = c.alphas[(r.backend, r.instance)] >= 0.5
+            amb = c.edist < r.delta_px
+            out.append(f'<figure><img src="data:image/png;base64,{_png_b64(_diff_image(ours, c.refs[r.reference][0], amb))}">'
+                       f"<figcaption>diff vs {e(r.reference)}: {r.differ_unambiguous} {ok(r.passed)}</figcaption></figure>")
+        out.append("</div>")
+    gr = summary["gradients"]
+    out.append(f"""<h2>2. Gradients vs central finite differences</h2>
+<p>float64, scene: squashed icosphere (80 faces), image {gr['image_size'][0]}x{gr['image_size'][1]}, τ = {gr['tau']:g}
+(squared: {gr['tau_squared']:g}), softmax blend. Metric |a − r| / max(|r|, {gr['floor']:g}); thresholds
+{e(json.dumps(gr['thresholds']))}; steps h {e(json.dumps(gr['steps']))} (τ: relative). {gr['checks']} checks,
+{gr['failed']} failed. {e(gr['note'])}.</p>""")
+    if grad_results:
+        out.append(f'<img src="data:image/png;base64,{_grad_plot(grad_results)}">')
+    out.append("<table><tr><th>backend</th><th>#</th><th>instance</th><th>param</th><th>h</th><th>pixel mean</th>"
+               "<th>pixel max</th><th>loss AD</th><th>loss FD</th><th>loss err</th><th></th></tr>")
+    for r in grad_results:
+        out.append(f"<tr><td>{e(r.backend)}</td><td>{r.instance}</td><td>{e(r.name)}</td><td>{e(r.param)}</td><td>{r.step:g}</td>"
+                   f"<td>{r.pixel_mean:.1e}</td><td>{r.pixel_max:.1e}</td><td>{r.loss_ad:.6g}</td><td>{r.loss_fd:.6g}</td>"
+                   f"<td>{r.loss_err:.1e}</td><td>{ok(r.passed)}</td></tr>")
+    out.append("</table>")
+    for (b, idx), imgs in grad_images.items():
+        out.append(f"<h4>{e(b)} instance {idx}: image, FD and AD derivative (alpha channel, sampled outputs)</h4><div>")
+        for p, (img, ad, fd) in imgs.items():
+            s = max(np.nanmax(np.abs(fd[..., 3])), 1e-12)
+            out.append(f'<figure><img src="data:image/png;base64,{_png_b64(img[..., 3])}"><figcaption>{e(p)}: alpha</figcaption></figure>')
+            out.append(f'<figure><img src="data:image/png;base64,{_png_b64(0.5 + 0.5 * fd[..., 3] / s)}"><figcaption>FD</figcaption></figure>')
+            out.append(f'<figure><img src="data:image/png;base64,{_png_b64(np.nan_to_num(0.5 + 0.5 * ad[..., 3] / s, nan=0.0))}"><figcaption>AD (sampled)</figcaption></figure>')
+        out.append("</div>")
+    if gr["backend_parity"]:
+        out.append("<h3>Backend parity (forward)</h3><table><tr><th>#</th><th>instance</th><th>backends</th><th>max |diff|</th></tr>")
+        for r in gr["backend_parity"]:
+            out.append(f"<tr><td>{r['instance']}</td><td>{e(r['name'])}</td><td>{e(r['backends'])}</td><td>{r['max_abs_diff']:.2e} "
+                       f"{ok(r['passed'])} {e(r.get('error', ''))}</td></tr>")
+        out.append("</table>")
+    out.append("</body></html>")
+    return "\n".join(out)
+
+
+def print_summary(s, stream=None):
+    stream = stream or sys.stdout
+    hl, gr = s["hard_limit"], s["gradients"]
+    w = stream.write
+    w(f"gendr validate ({s['mode']}, {s['image_size'][0]}x{s['image_size'][1]}): backends {', '.join(s['backends']) or '-'}; "
+      f"references {', '.join(s['references']) or '-'}\n")
+    w(f"  hard limit: {hl['checks'] - hl['failed']}/{hl['checks']} comparisons pass; unambiguous differing px: "
+      f"{hl['differ_unambiguous_total']} (ambiguous: {hl['differ_ambiguous_total']}); {hl['seconds']:.1f}s\n")
+    fails = [r for r in hl["table"] if r["failed_instances"]]
+    for r in fails[:10]:
+        w(f"    FAIL {r['scene']}/{r['camera']}/{r['backend']} vs {r['reference']}: {r['differ_unambiguous']} px "
+          f"over {r['failed_instances']} instances ({r['errors']} render errors)\n")
+    if len(fails) > 10:
+        w(f"    ... {len(fails) - 10} more in summary.json\n")
+    errs = sorted({(r["backend"], r["error"]) for r in hl["rows"] if r["error"]})
+    for b, m in errs[:3]:
+        w(f"    render error ({b}): {m[:150]}\n")
+    pf = [r for r in gr["backend_parity"] if not r["passed"]]
+    if gr["backend_parity"]:
+        w(f"  backend parity: {len(gr['backend_parity']) - len(pf)}/{len(gr['backend_parity'])} pass\n")
+    w(f"  gradients: {gr['checks'] - gr['failed']}/{gr['checks']} checks pass over {len(gr['instances'])} instances; {gr['seconds']:.1f}s\n")
+    bad = [r for r in gr["rows"] if not r["passed"]]
+    for r in bad[:8]:
+        w(f"    FAIL {r['backend']} #{r['instance']} {r['name']} d/{r['param']}: pixel max {r['pixel_max']:.1e}, loss err {r['loss_err']:.1e}\n")
+    if len(bad) > 8:
+        w(f"    ... {len(bad) - 8} more failures in summary.json\n")
+    for n in s["notes"]:
+        w(f"  note: {n}\n")
+    w(f"  {'PASSED' if s['passed'] else 'FAILED'} in {s['seconds']:.1f}s\n")
