@@ -2,6 +2,15 @@
 
     .venv/bin/python benchmarks/bench_render.py --out out/bench_torch.json            # default cases
     .venv/bin/python benchmarks/bench_render.py --case large --repeats 1              # 1024², 20,480 faces
+    .venv/bin/python benchmarks/bench_render.py --backend drjit --out out/bench_drjit.json
+
+With ``--backend drjit`` the inputs are Dr.Jit tensors (LLVM on CPU, float32) and each call ends with
+``dr.sync_thread()`` (launches are asynchronous). Extra fields: ``first_call_cold_ms`` (first call
+in a fresh process with an empty Dr.Jit kernel cache: tracing + LLVM compilation), per-call kernel
+statistics from Dr.Jit's kernel history (kernels launched, kernels compiled = cache misses, summed
+kernel execution time), and ``optimization_loop``: 100 forward+backward steps on changing vertices
+(a training loop; wall times and kernels compiled), then 5 renders with different τ
+(``kernels_compiled_tau_changes``: τ is opaque, so none may compile a kernel).
 
 Cases (DESIGN/issue 2): icosphere subdivision 3 (1,280 faces) at 256×256, logistic + probabilistic,
 τ = 0.01, eps = 1e-4, silhouette only (blend=None, as PyTorch3D's soft silhouette), forward and
@@ -67,11 +76,22 @@ def measure(fn, repeats):
     return times
 
 
+def probe(backend, name, mode, threads, cold=False):
+    """Run one call of ``mode`` in a fresh interpreter: {"peak_extra_mb", "first_call_ms"}.
+
+    ``cold``: with HOME pointing to an empty directory, so Dr.Jit finds no cached kernels."""
+    cmd = [sys.executable, __file__, "--backend", backend, "--threads", str(threads), "--memory-probe", name, mode]
+    env = dict(os.environ)
+    if cold:
+        import tempfile
+        env["HOME"] = tempfile.mkdtemp(prefix="gendr-bench-home-")
+    out = subprocess.run(cmd, capture_output=True, text=True, check=True, env=env).stdout
+    return json.loads(out.strip().splitlines()[-1])
+
+
 def peak_extra_mb(backend, name, mode, threads):
     """Run one call of ``mode`` in a fresh interpreter and return its peak extra RSS in MB."""
-    cmd = [sys.executable, __file__, "--backend", backend, "--threads", str(threads), "--memory-probe", name, mode]
-    out = subprocess.run(cmd, capture_output=True, text=True, check=True).stdout
-    return json.loads(out.strip().splitlines()[-1])["peak_extra_mb"]
+    return probe(backend, name, mode, threads)["peak_extra_mb"]
 
 
 def summary(times):
@@ -98,7 +118,9 @@ def machine():
 
 def setup(backend, name, threads):
     """(forward, forward_backward, info) callables of one case."""
-    import torch  # only the torch backend exists so far; inputs are torch tensors for it
+    if backend == "drjit":
+        return setup_drjit(name, threads)
+    import torch  # the torch backend: inputs are torch tensors
     torch.set_num_threads(threads)
     cfg = CASES[name]
     mesh = icosphere(cfg["subdivisions"])
@@ -123,11 +145,106 @@ def setup(backend, name, threads):
     return {"forward": forward, "forward_backward": forward_backward}, info
 
 
+def setup_drjit(name, threads, tau=0.01):
+    import drjit as dr
+    from drjit.llvm.ad import TensorXf
+    dr.set_thread_count(threads)
+    cfg = CASES[name]
+    mesh = icosphere(cfg["subdivisions"])
+    verts = TensorXf(mesh.vertices.astype(np.float32))
+    faces = mesh.faces
+    cam = gendr.PerspectiveCamera(eye=(0.0, 0.0, 3.0), fov_y=60.0)
+
+    def renderer(t=tau):
+        return gendr.Renderer("logistic", "probabilistic", tau=t, image_size=cfg["size"], eps=1e-4, blend=None,
+                              backend="drjit", device="llvm")
+    r = renderer()
+
+    def forward():
+        img = r.render(verts, faces, cam)
+        dr.eval(img)
+        dr.sync_thread()
+        return img
+
+    def forward_backward(rr=None, vv=None):
+        v = TensorXf(verts if vv is None else vv)
+        dr.enable_grad(v)
+        img = (rr or r).render(v, faces, cam)
+        dr.backward(dr.sum(img[..., 3].array))
+        g = dr.grad(v)
+        dr.eval(g)
+        dr.sync_thread()
+        return g
+
+    info = {"case": name, "backend": "drjit", "device": "llvm", "dtype": "float32", "faces": int(faces.shape[0]),
+            "image_size": cfg["size"], "instance": "logistic|probabilistic", "tau": tau, "eps": 1e-4, "blend": None,
+            "threads": threads, "versions": {"drjit": dr.__version__}}
+    return {"forward": forward, "forward_backward": forward_backward, "_renderer": renderer, "_verts": verts}, info
+
+
+def kernel_stats(fn):
+    """Run fn once with Dr.Jit's kernel history: kernels launched / compiled, summed execution ms."""
+    import drjit as dr
+    dr.kernel_history_clear()
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        fn()
+        hist = dr.kernel_history()
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    jit = [k for k in hist if k.get("type") == dr.KernelType.JIT]
+    return {"kernels_launched": len(jit), "kernels_compiled": sum(1 for k in jit if not k.get("cache_hit")),
+            "kernel_exec_ms": sum(k.get("execution_time", 0.0) for k in hist)}
+
+
+def optimization_loop(modes, steps=100):
+    """``steps`` forward+backward calls on changing vertices (a training loop): wall times and the
+    number of kernels compiled; then 5 renders with different τ (opaque: nothing may compile)."""
+    import drjit as dr
+    from drjit.llvm.ad import TensorXf
+    fb, r = modes["forward_backward"], modes["_renderer"]()
+    rng = np.random.default_rng(0)
+    base = np.asarray(modes["_verts"].numpy())
+    vs = [TensorXf((base + 1e-3 * rng.standard_normal(base.shape)).astype(np.float32)) for _ in range(steps)]
+    dr.eval(vs)
+    fb()  # warm
+    dr.kernel_history_clear()
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    times = []
+    try:
+        for v in vs:
+            t0 = time.perf_counter()
+            fb(r, v)
+            times.append(time.perf_counter() - t0)
+        hist = dr.kernel_history()
+        dr.kernel_history_clear()
+        for t in (0.011, 0.012, 0.013, 0.014, 0.015):
+            fb(modes["_renderer"](t))
+        hist_tau = dr.kernel_history()
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+
+    def compiled(h):
+        return sum(1 for k in h if k.get("type") == dr.KernelType.JIT and not k.get("cache_hit"))
+    return summary(times) | {"steps": steps, "total_s": sum(times), "kernels_compiled": compiled(hist),
+                             "kernels_compiled_tau_changes": compiled(hist_tau)}
+
+
 def run_case(backend, name, repeats, threads):
     modes, out = setup(backend, name, threads)
-    out["alpha_sum"] = float(modes["forward"]()[..., 3].sum())
-    for label, fn in modes.items():
+    if backend == "drjit":
+        img = modes["forward"]()
+        out["alpha_sum"] = float(np.asarray(img.numpy())[..., 3].astype(np.float64).sum())
+    else:
+        out["alpha_sum"] = float(modes["forward"]()[..., 3].sum())
+    for label in ("forward", "forward_backward"):
+        fn = modes[label]
         out[label] = summary(measure(fn, repeats)) | {"peak_extra_mb": peak_extra_mb(backend, name, label, threads)}
+        if backend == "drjit":
+            out[label]["first_call_cold_ms"] = probe(backend, name, label, threads, cold=True)["first_call_ms"]
+            out[label] |= kernel_stats(fn)
+    if backend == "drjit" and name == "default":
+        out["optimization_loop"] = optimization_loop(modes)
     return out
 
 
@@ -144,8 +261,10 @@ def main(argv=None):
         modes, _ = setup(a.backend, a.memory_probe[0], a.threads)
         rss0 = _status_kb("VmRSS")
         _reset_peak()
+        t0 = time.perf_counter()
         modes[a.memory_probe[1]]()
-        print(json.dumps({"peak_extra_mb": (_status_kb("VmHWM") - rss0) / 1024.0}))
+        dt = time.perf_counter() - t0
+        print(json.dumps({"peak_extra_mb": (_status_kb("VmHWM") - rss0) / 1024.0, "first_call_ms": 1000.0 * dt}))
         return 0
     result = {"machine": machine(), "results": [run_case(a.backend, c, a.repeats, a.threads) for c in (a.case or ["default"])]}
     text = json.dumps(result, indent=2)

@@ -65,8 +65,13 @@ def _triple(owner, name, value):
 
 
 def _scalar(t) -> float:
-    """float() of a Python number or a 0-d array/tensor (detached first, no autograd warning)."""
-    return float(t.detach() if hasattr(t, "detach") else t)
+    """float() of a Python number or a 0-d array/tensor (torch: detached first, no autograd
+    warning; Dr.Jit arrays have no __float__, so go through .numpy())."""
+    if hasattr(t, "detach"):
+        t = t.detach()
+    elif hasattr(t, "numpy"):
+        t = t.numpy().reshape(-1)[0]
+    return float(t)
 
 
 def _check_tau(tau):

@@ -1,0 +1,9 @@
+"""gendr's Dr.Jit backend (entry point ``gendr.backends: drjit``).
+
+``gendr.Renderer(..., backend="drjit")``; CUDA when available, else LLVM (``device="llvm"|"cuda"``
+overrides). float32 and float64 (the vertices' dtype). Inputs: Dr.Jit tensors, NumPy arrays or
+torch tensors (torch in -> torch out, gradients flow back into torch).
+"""
+from .backend import DrJitBackend
+
+__all__ = ["DrJitBackend"]

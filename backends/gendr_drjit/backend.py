@@ -1,0 +1,320 @@
+"""The Dr.Jit backend object the :class:`gendr.Renderer` facade talks to.
+
+Inputs may be Dr.Jit tensors (``TensorXf``/``TensorXf64`` of the chosen device; AD through Dr.Jit),
+NumPy arrays, or torch tensors. With any torch tensor among the inputs (vertices, colours, τ, camera
+parameters) the render runs through ``dr.wrap(source="torch", target="drjit")``: the image is a torch
+tensor and gradients flow back into torch. Otherwise the image is a Dr.Jit tensor [B, H, W, 4].
+The image has the vertices' dtype (float32 or float64).
+"""
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import drjit as dr
+
+from gendr.cameras import VEC3
+from gendr.errors import BackendUnavailableError, DTypeError, InputValueError, ParameterError, ShapeError
+
+from . import raster
+from .ops import DrJitOps
+
+DEVICES = ("llvm", "cuda")
+
+
+def _torch():
+    return sys.modules.get("torch")
+
+
+def _is_torch(x):
+    t = _torch()
+    return t is not None and isinstance(x, t.Tensor)
+
+
+def _is_drjit(x):
+    return isinstance(x, dr.ArrayBase)
+
+
+class Input:
+    """A validated input array: the original object, its shape and dtype, a detached NumPy copy."""
+
+    def __init__(self, kind, data, np_value, dtype):
+        self.kind, self.data, self.np, self.dtype = kind, data, np_value, dtype
+        self.shape = tuple(np_value.shape)
+
+    def __repr__(self):
+        return f"Input({self.kind}, shape={self.shape}, dtype={self.dtype})"
+
+
+def _drjit_dtype(x):
+    vt = dr.type_v(x)
+    return {dr.VarType.Float32: "float32", dr.VarType.Float64: "float64"}.get(vt, str(vt).split(".")[-1].lower())
+
+
+def _drjit_numpy(x):
+    return np.asarray(dr.detach(x).numpy())
+
+
+_BRIDGE = None
+
+
+def _bridge():
+    """A torch.autograd.Function running a Dr.Jit function (built on first use: torch is optional).
+
+    Like ``dr.wrap(source="torch", target="drjit")``, but re-entrant: the Dr.Jit AD graph is kept
+    (``ClearInterior`` only), so torch may call backward several times (``retain_graph=True``,
+    ``torch.autograd.gradcheck``); ``dr.wrap`` 1.5 clears the graph after the first backward and
+    then returns zero gradients.
+    """
+    global _BRIDGE
+    if _BRIDGE is None:
+        torch = _torch()
+
+        class DrJitFunction(torch.autograd.Function):
+            @staticmethod
+            def forward(ctx, fn, T, *tensors):
+                inputs = []
+                for x in tensors:
+                    d = T.Tensor(x.detach().contiguous())
+                    if x.requires_grad:
+                        dr.enable_grad(d)
+                    inputs.append(d)
+                with torch.enable_grad():
+                    out = fn(*inputs)
+                ctx.inputs, ctx.output, ctx.T = inputs, out, T
+                ctx.device = tensors[0].device if tensors else None
+                res = dr.detach(out).torch()
+                res = res.to(ctx.device) if ctx.device is not None else res
+                if not dr.grad_enabled(out):  # piecewise-constant instances (heaviside, "or", no RGB)
+                    ctx.mark_non_differentiable(res)
+                return res
+
+            @staticmethod
+            @torch.autograd.function.once_differentiable
+            def backward(ctx, grad):
+                T, inputs = ctx.T, ctx.inputs
+                if not dr.grad_enabled(ctx.output):
+                    return (None, None, *[None] * len(inputs))
+                for x in inputs:
+                    if dr.grad_enabled(x):
+                        dr.clear_grad(x)
+                dr.set_grad(ctx.output, T.Tensor(grad.detach().contiguous().to(dtype=grad.dtype)))
+                dr.enqueue(dr.ADMode.Backward, ctx.output)
+                dr.traverse(dr.ADMode.Backward, dr.ADFlag.ClearInterior | dr.ADFlag.ClearInput)
+                outs = []
+                for x in inputs:
+                    if dr.grad_enabled(x):
+                        g = dr.grad(x).torch()
+                        outs.append(g.to(ctx.device) if ctx.device is not None else g)
+                        dr.clear_grad(x)
+                    else:
+                        outs.append(None)
+                return (None, None, *outs)
+
+        _BRIDGE = DrJitFunction
+    return _BRIDGE
+
+
+class DrJitBackend:
+    """Renders with Dr.Jit: one fused per-pixel loop kernel per pass (see :mod:`gendr_drjit.raster`).
+
+    device : "llvm" (CPU), "cuda", or None (CUDA when available, else LLVM).
+    """
+
+    name = "drjit"
+
+    def __init__(self, device=None):
+        if device is None:
+            device = "cuda" if dr.has_backend(dr.JitBackend.CUDA) else "llvm"
+        if device not in DEVICES:
+            raise ParameterError(f"drjit backend parameter device={device!r} must be one of {DEVICES} or None")
+        jb = dr.JitBackend.CUDA if device == "cuda" else dr.JitBackend.LLVM
+        if not dr.has_backend(jb):
+            raise BackendUnavailableError(
+                f"drjit backend device={device!r} is not available on this machine "
+                f"(available: {[d for d in DEVICES if dr.has_backend(getattr(dr.JitBackend, d.upper()))]})")
+        self.device = device
+        if device == "cuda":
+            import drjit.cuda.ad as module
+        else:
+            import drjit.llvm.ad as module
+        self.module = module
+        self._types = {}
+        self._ops = {}
+
+    def types(self, double):
+        if double not in self._types:
+            T = raster.Types(self.module, double)
+            self._types[double] = T
+            self._ops[double] = DrJitOps(T.Float)
+        return self._types[double], self._ops[double]
+
+    @property
+    def ops(self):
+        return self.types(True)[1]
+
+    # --- the facade's protocol ----------------------------------------------------------------
+    def float_array(self, x, name, like=None):
+        if _is_torch(x):
+            torch = _torch()
+            dt = str(x.dtype).replace("torch.", "")
+            if like is None and x.dtype not in (torch.float32, torch.float64):
+                raise DTypeError(f"{name} must be float32 or float64, got {x.dtype}")
+            # (colours, like=...: any torch dtype is cast to the vertices' dtype, as the torch backend does)
+            a = x.detach().cpu().to(torch.float64).numpy()
+            return Input("torch", x, a, like.dtype if like is not None else dt)
+        if _is_drjit(x):
+            dt = _drjit_dtype(x)
+            if like is None and dt not in ("float32", "float64"):
+                raise DTypeError(f"{name} must be float32 or float64, got {dt}")
+            if not dr.is_tensor_v(x):
+                raise DTypeError(f"{name}: Dr.Jit inputs must be tensors (e.g. {self.module.__name__}.TensorXf), "
+                                 f"got {type(x).__name__}")
+            return Input("drjit", x, _drjit_numpy(x).astype(np.float64), like.dtype if like is not None else dt)
+        a = np.asarray(x)
+        if not (a.dtype in (np.float32, np.float64) or (like is not None and a.dtype.kind in "iu")):
+            raise DTypeError(f"{name} must be float32 or float64, got dtype {a.dtype}")
+        return Input("numpy", a, a.astype(np.float64), like.dtype if like is not None else a.dtype.name)
+
+    def index_array(self, x, name):
+        if _is_torch(x):
+            torch = _torch()
+            if x.dtype.is_floating_point or x.dtype == torch.bool or x.dtype.is_complex:
+                raise DTypeError(f"{name} must be an integer array, got {x.dtype}")
+            return x.detach().cpu().numpy().astype(np.int64)
+        if _is_drjit(x):
+            vt = dr.type_v(x)
+            if vt not in (dr.VarType.Int32, dr.VarType.UInt32, dr.VarType.Int64, dr.VarType.UInt64):
+                raise DTypeError(f"{name} must be an integer array, got {vt}")
+            return np.asarray(x.numpy()).astype(np.int64)
+        a = np.array(x)
+        if a.dtype.kind not in "iu":
+            raise DTypeError(f"{name} must be an integer array, got {a.dtype}")
+        return a.astype(np.int64)
+
+    def first_nonfinite(self, t):
+        bad = ~np.isfinite(t.np)
+        if not bad.any():
+            return None
+        idx = tuple(int(i) for i in np.argwhere(bad)[0])
+        return idx, float(t.np[idx])
+
+    def index_range(self, t):
+        return int(t.min()), int(t.max())
+
+    def to_numpy(self, image):
+        if _is_torch(image):
+            return image.detach().cpu().numpy()
+        return np.asarray(dr.detach(image).numpy())
+
+    # --- rendering ----------------------------------------------------------------------------
+    def render(self, settings, verts, faces, camera, colors, per_face):
+        double = verts.dtype == "float64"
+        T, ops = self.types(double)
+        cam = camera.array_params()
+        tau = settings.tau
+        # every torch tensor goes through dr.wrap (gradients flow back into torch)
+        slots = {}
+        if verts.kind == "torch":
+            slots["vertices"] = verts.data
+        if colors is not None and colors.kind == "torch":
+            slots["colors"] = colors.data
+        if _is_torch(tau):
+            slots["tau"] = tau
+        for k, (v, _) in cam.items():
+            if _is_torch(v):
+                slots["cam:" + k] = v
+        if not slots:
+            return self._render(settings, camera, T, ops, verts, faces, colors, per_face, cam, tau, {})
+        torch = _torch()
+        names = list(slots)
+        out_dtype = torch.float64 if double else torch.float32
+        # one dtype for everything (torch's .to is differentiable); CPU tensors for the LLVM device
+        dev = "cuda" if self.device == "cuda" else "cpu"
+        args = [slots[n].to(dtype=out_dtype, device=dev) for n in names]
+
+        def fn(*dj):
+            return self._render(settings, camera, T, ops, verts, faces, colors, per_face, cam, tau, dict(zip(names, dj)))
+        return _bridge().apply(fn, T, *args)
+
+    def _render(self, settings, camera, T, ops, verts, faces, colors, per_face, cam, tau, wrapped):
+        """Everything in Dr.Jit; ``wrapped`` holds Dr.Jit versions of the torch inputs."""
+        vflat = self._flat(wrapped.get("vertices", verts.data if verts.kind != "torch" else None), verts, T)
+        Bv, V = (verts.shape[0], verts.shape[1]) if len(verts.shape) == 3 else (1, verts.shape[0])
+        col = None
+        if colors is not None:
+            cflat = self._flat(wrapped.get("colors", colors.data if colors.kind != "torch" else None), colors, T)
+            col = (cflat, colors.shape[0] if len(colors.shape) == 3 else 1)
+        P, Bc = {}, 1
+        for name, (value, kind) in cam.items():
+            v = wrapped.get("cam:" + name, value)
+            arr, shape = self._param(v, T)
+            if kind == VEC3:
+                if shape == (3,):
+                    shape = (1, 3)
+                if len(shape) != 2 or shape[1] != 3:
+                    raise ShapeError(f"camera parameter {name} must have shape [3] or [B, 3], got {list(shape)}")
+            else:
+                if shape == ():
+                    shape = (1,)
+                if len(shape) != 1:
+                    raise ShapeError(f"camera parameter {name} must be a scalar or have shape [B], got {list(shape)}")
+            vals = dr.detach(arr).numpy()
+            if not np.all(np.isfinite(vals)):
+                raise InputValueError(f"camera parameter {name} must be finite, got {np.asarray(vals).reshape(shape).tolist()}")
+            n = shape[0]
+            if n != 1:
+                if Bc not in (1, n):
+                    raise ShapeError(f"camera parameter {name} has batch size {n}, others have {Bc}")
+                Bc = n
+            if kind == VEC3:
+                idx = dr.arange(T.UInt32, n) * 3
+                P[name] = tuple(self._opaque(dr.gather(T.Float, arr, idx + c), T) for c in range(3))
+            else:
+                P[name] = self._opaque(arr, T)
+        if Bv != 1 and Bc != 1 and Bv != Bc:
+            raise ShapeError(f"vertex batch size {Bv} and camera batch size {Bc} do not match")
+        t = wrapped.get("tau", tau)
+        tau_arr = self._opaque(self._param(t, T)[0], T)
+        H, W = settings.image_size
+        out, B = raster.render(settings, camera, ops, T, P, Bc, vflat, Bv, V, faces, col, per_face, tau_arr)
+        return T.Tensor(out, shape=(B, H, W, 4))
+
+    def _flat(self, x, inp, T):
+        """A flat AD array of ``T.Float`` from a Dr.Jit tensor (keeps AD) or the NumPy copy."""
+        if x is not None and _is_drjit(x):
+            a = x.array if dr.is_tensor_v(x) else x
+            return a if type(a) is T.Float else T.Float(a)
+        return T.Float(inp.np.reshape(-1).astype(np.float64 if T.double else np.float32))
+
+    def _param(self, v, T):
+        """(flat AD array, shape) of a camera parameter / τ of any supported kind."""
+        if _is_drjit(v):
+            if dr.is_tensor_v(v):
+                a, shape = v.array, tuple(v.shape)
+            elif dr.depth_v(v) > 1:  # e.g. Array3f: components -> a flat row-major [n, 3] array (keeps AD)
+                n = max(dr.width(c) for c in v)
+                lane = dr.arange(T.UInt32, n * len(v))
+                row, comp = lane // len(v), lane % len(v)
+                a = dr.zeros(T.Float, n * len(v))
+                for i, c in enumerate(v):
+                    c = T.Float(c)
+                    a = dr.select(comp == i, c if dr.width(c) == 1 else dr.gather(T.Float, c, row), a)
+                shape = (len(v),) if n == 1 else (n, len(v))
+            else:
+                a = v
+                shape = () if dr.width(v) == 1 else (dr.width(v),)
+            return (a if type(a) is T.Float else T.Float(a)), shape
+        if _is_torch(v):
+            v = v.detach().cpu().numpy()
+        a = np.asarray(v, dtype=np.float64)
+        return T.Float(a.reshape(-1).astype(np.float64 if T.double else np.float32)), a.shape
+
+    @staticmethod
+    def _opaque(a, T):
+        """Width-1 constants become opaque (not literals): new values do not recompile kernels."""
+        if dr.width(a) == 1 and not dr.grad_enabled(a):
+            return dr.opaque(T.Float, dr.detach(a)[0], 1)
+        if not dr.grad_enabled(a):
+            dr.make_opaque(a)
+        return a

@@ -1,0 +1,119 @@
+"""The Dr.Jit backend raises the same typed errors, with the same messages, as the torch backend
+(the input cases of test_render_errors.py, run through both), plus its own device errors."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+dr = pytest.importorskip("drjit", reason="the Dr.Jit backend needs drjit (pip install gendr[drjit])")
+torch = pytest.importorskip("torch")
+
+import gendr  # noqa: E402
+from gendr.errors import BackendUnavailableError, GendrError, ParameterError  # noqa: E402
+
+V = torch.tensor([[-0.5, -0.5, 0.0], [0.5, -0.5, 0.0], [0.0, 0.5, 0.0], [0.3, 0.3, 0.1]], dtype=torch.float64)
+F = torch.tensor([[0, 1, 2], [1, 3, 2]])
+CAM = gendr.PerspectiveCamera()
+
+
+def _faces_with(bad):
+    f = F.clone()
+    f[1, 1] = bad
+    return f
+
+
+def _nonfinite(value):
+    v = V.clone()[None].repeat(2, 1, 1)
+    v[1, 3, 2] = value
+    return v
+
+
+def _nan_colour():
+    c = torch.rand(4, 3, dtype=torch.float64)
+    c[2, 1] = math.nan
+    return c
+
+
+#: name -> (vertices, faces, camera, render kwargs)
+CASES = {
+    **{f"vertices_shape_{s}": (lambda s=s: torch.zeros(s, dtype=torch.float64), F, CAM, {})
+       for s in [(4, 2), (1, 4, 3, 1), (4,), (4, 4), (2, 0, 3)]},
+    **{f"vertices_dtype_{d}": (lambda d=d: V.to(d), F, CAM, {})
+       for d in [torch.int64, torch.int32, torch.float16, torch.bfloat16, torch.bool, torch.complex64]},
+    **{f"numpy_vertices_dtype_{np.dtype(d).name}": (lambda d=d: V.numpy().astype(d), F, CAM, {})
+       for d in [np.int64, np.int32, np.float16, np.bool_]},
+    "vertices_object_array": (lambda: np.array([["a", "b", "c"]] * 4), F, CAM, {}),
+    **{f"faces_dtype_{i}": (lambda: V, f, CAM, {})
+       for i, f in enumerate([F.double(), F.float(), F.bool(), F.numpy().astype(np.float32)])},
+    **{f"faces_shape_{i}": (lambda: V, f, CAM, {})
+       for i, f in enumerate([torch.tensor([0, 1, 2]), torch.tensor([[0, 1, 2, 3]]), torch.zeros(1, 3, 1, dtype=torch.long)])},
+    **{f"face_index_{b}": (lambda: V, _faces_with(b), CAM, {}) for b in (4, -1, 17)},
+    **{f"nonfinite_vertex_{x}": (lambda x=x: _nonfinite(x), F, CAM, {}) for x in (math.nan, math.inf, -math.inf)},
+    "colours_shape_0": (lambda: V, F, CAM, {"vertex_colors": torch.rand(3, 3, dtype=torch.float64)}),
+    "colours_shape_1": (lambda: V, F, CAM, {"vertex_colors": torch.rand(4, 4, dtype=torch.float64)}),
+    "colours_shape_2": (lambda: V, F, CAM, {"vertex_colors": torch.rand(1, 1, 4, 3, dtype=torch.float64)}),
+    "colours_shape_3": (lambda: V, F, CAM, {"face_colors": torch.rand(4, 3, dtype=torch.float64)}),
+    "colours_shape_4": (lambda: V, F, CAM, {"face_colors": torch.rand(2, 2, dtype=torch.float64)}),
+    "colour_nonfinite": (lambda: V, F, CAM, {"vertex_colors": _nan_colour()}),
+    "both_colour_kinds": (lambda: V, F, CAM, {"vertex_colors": torch.rand(4, 3, dtype=torch.float64),
+                                               "face_colors": torch.rand(2, 3, dtype=torch.float64)}),
+    "not_a_camera": (lambda: V, F, "perspective", {}),
+    "camera_batch_mismatch": (lambda: V[None].repeat(2, 1, 1), F,
+                              gendr.orbit_camera(torch.tensor([0.0, 10.0, 20.0], dtype=torch.float64), 0.0, 3.0), {}),
+    "camera_batches_differ": (lambda: V, F, gendr.PerspectiveCamera(
+        eye=torch.tensor([[0.0, 0.0, 3.0]] * 2, dtype=torch.float64),
+        fov_y=torch.tensor([30.0, 40.0, 50.0], dtype=torch.float64)), {}),
+    "camera_parameter_shape": (lambda: V, F, gendr.PerspectiveCamera(eye=torch.zeros(2, 2, dtype=torch.float64)), {}),
+    "camera_parameter_nan": (lambda: V, F, gendr.PerspectiveCamera(
+        eye=torch.tensor([0.0, math.nan, 3.0], dtype=torch.float64)), {}),
+    "camera_parameter_nan_numpy": (lambda: V.numpy(), F.numpy(), gendr.PerspectiveCamera(
+        eye=np.array([0.0, math.nan, 3.0])), {}),
+}
+
+
+def _raise(backend, case):
+    make_v, faces, cam, kw = CASES[case]
+    r = gendr.Renderer(image_size=(8, 10), backend=backend)
+    with pytest.raises(GendrError) as e:
+        r.render(make_v(), faces, cam, **kw)
+    return e.value
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_same_error_as_torch(case):
+    ref, got = _raise("torch", case), _raise("drjit", case)
+    assert type(got) is type(ref)
+    # (NumPy faces: the torch backend converts them first and spells the dtype "torch.float32")
+    assert str(got) in (str(ref), str(ref).replace("torch.float32", "float32"))
+
+
+def test_drjit_input_dtype_errors():
+    from drjit.llvm.ad import TensorXi, TensorXf
+    r = gendr.Renderer(image_size=(8, 10), backend="drjit")
+    with pytest.raises(gendr.DTypeError, match="vertices"):
+        r.render(TensorXi(np.zeros((4, 3), np.int32)), F, CAM)
+    with pytest.raises(gendr.DTypeError, match="faces"):
+        r.render(TensorXf(V.numpy().astype(np.float32)), TensorXf(F.numpy().astype(np.float32)), CAM)
+
+
+def test_device_selection():
+    r = gendr.Renderer(backend="drjit")
+    assert r.backend.device == ("cuda" if dr.has_backend(dr.JitBackend.CUDA) else "llvm")
+    assert gendr.Renderer(backend="drjit", device="llvm").backend.device == "llvm"
+    with pytest.raises(ParameterError, match="device"):
+        gendr.Renderer(backend="drjit", device="tpu")
+    if not dr.has_backend(dr.JitBackend.CUDA):
+        with pytest.raises(BackendUnavailableError, match="cuda"):
+            gendr.Renderer(backend="drjit", device="cuda")
+
+
+@pytest.mark.parametrize("blend", [None, "softmax", "hard"])
+def test_no_faces_gives_the_background(blend):
+    """F = 0 is valid input: both backends render alpha 0 and the background."""
+    f = torch.zeros(0, 3, dtype=torch.long)
+    imgs = [gendr.Renderer(backend=be, image_size=(8, 10), blend=blend, background=(0.1, 0.2, 0.3)).render(
+        V.clone().requires_grad_(True), f, CAM).detach() for be in ("torch", "drjit")]
+    assert imgs[0].shape == imgs[1].shape == (1, 8, 10, 4)
+    assert float((imgs[0] - imgs[1]).abs().max()) == 0.0

@@ -1,0 +1,281 @@
+"""The Dr.Jit backend against the torch backend (same scene as test_renderer_reference.py).
+
+float64: images and gradients (vertices, τ, camera parameters, colours) agree to F64_TOL absolute:
+the two backends evaluate the same spec formulas, so only rounding differs (measured ~4e-12).
+float32: both backends are float32 approximations of the same float64 function, and for some
+ill-conditioned instances (gamma shape 0.5 with aczel_alsina p=4, frank/hamacher with heavy tails)
+torch's own float32 gradients are 1e-4..3e-4 (relative to the largest) away from float64. So the
+Dr.Jit float32 result is checked against the float64 torch reference with the tolerances the torch
+backend's own tests use (forward 2e-5, gradients 1e-3·max + 1e-5), and against torch float32 directly
+(forward 1e-5 absolute, gradients 1e-4 relative to the largest) on well-conditioned instances.
+Instances with a kink that float32 rounding can move a pixel across (yager p = 1: A = min(1, Σp)
+switches its gradient off exactly at Σp = 1) are left out of the float32 cases.
+
+Inputs are torch tensors (the dr.wrap path, gradients flow into torch) unless a test says otherwise.
+Default run: every distribution setting of the paper's grid (plain and squared, T-conorm rotating),
+every T-conorm setting (distribution rotating), every blend × camera × colour kind, batches, NumPy
+and Dr.Jit inputs. ``pytest -m slow`` adds the whole paper grid (1,242 instances) in float64.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+dr = pytest.importorskip("drjit", reason="the Dr.Jit backend needs drjit (pip install gendr[drjit])")
+torch = pytest.importorskip("torch")
+
+import gendr  # noqa: E402
+from gendr.grid import DISTRIBUTION_SETTINGS, TCONORM_SETTINGS  # noqa: E402
+from test_renderer_reference import (FACES, FACES_SOFTMAX, ZERO_AREA, H, W, face_colors, make_camera,  # noqa: E402
+                                     scene_vertices, vertex_colors)
+
+F64_TOL = 1e-9
+F32_FWD_VS_F64, F32_GRAD_VS_F64 = 2e-5, 1e-3
+F32_FWD_VS_TORCH32, F32_GRAD_VS_TORCH32 = 1e-5, 1e-4
+
+
+def _tau0(dist):
+    return 0.012 if dist.squared else 0.1
+
+
+def run(backend, dist, tcn, *, dtype=torch.float64, blend=None, eps=1e-3, camera="perspective", colors=None,
+        faces=None, verts=None, **kw):
+    """(image, {name: gradient}) of (image * fixed_randn).sum() w.r.t. every input."""
+    faces = (FACES_SOFTMAX if blend == "softmax" else FACES) if faces is None else faces
+    v = (scene_vertices() if verts is None else verts).to(dtype).requires_grad_(True)
+    tau = torch.tensor(_tau0(dist), dtype=dtype, requires_grad=True)
+    cam, params = make_camera(camera, dtype)
+    ckw = {}
+    if colors == "vertex":
+        ckw["vertex_colors"] = vertex_colors(dtype).requires_grad_(True)
+    elif colors == "face":
+        ckw["face_colors"] = face_colors(dtype)[:faces.shape[0]].requires_grad_(True)
+    r = gendr.Renderer(dist, tcn, tau=tau, image_size=(H, W), eps=eps, blend=blend, backend=backend, **kw)
+    img = r.render(v, faces, cam, **ckw)
+    assert isinstance(img, torch.Tensor) and img.dtype == dtype and img.shape == (2, H, W, 4)
+    inputs = {"vertices": v, "tau": tau, **params, **ckw}
+    w = torch.randn(img.shape, generator=torch.Generator().manual_seed(7), dtype=torch.float64).to(dtype)
+    if img.requires_grad:
+        grads = torch.autograd.grad((img * w).sum(), list(inputs.values()), allow_unused=True)
+    else:
+        grads = [None] * len(inputs)
+    out = {}
+    for (k, x), g in zip(inputs.items(), grads):
+        g = torch.zeros_like(x) if g is None else g
+        if k == "vertices":  # the zero-area face's own vertices: a kink (see test_renderer_reference)
+            g = g[..., :ZERO_AREA.start, :]
+        out[k] = g.detach().double()
+    return img.detach().double(), out
+
+
+def compare(a, b):
+    """(max |forward difference|, {name: max |gradient difference|}, {name: max |reference gradient|})."""
+    (ia, ga), (ib, gb) = a, b
+    assert torch.isfinite(ia).all() and all(torch.isfinite(g).all() for g in ga.values())
+    return (float((ia - ib).abs().max()), {k: float((ga[k] - gb[k]).abs().max()) for k in gb},
+            {k: float(gb[k].abs().max()) for k in gb})
+
+
+def assert_parity_f64(dist, tcn, **kw):
+    fwd, bwd, _ = compare(run("drjit", dist, tcn, **kw), run("torch", dist, tcn, **kw))
+    assert fwd <= F64_TOL, f"forward differs by {fwd:.3g}"
+    for k, e in bwd.items():
+        assert e <= F64_TOL, f"gradient w.r.t. {k} differs by {e:.3g}"
+
+
+def _dist(setting, squared=False):
+    name, params, rev = setting
+    return gendr.distribution(name, reversed=rev, squared=squared, **params)
+
+
+def _tcn(setting):
+    return gendr.tconorm(setting[0], **setting[1])
+
+
+def _id(x):
+    return x.label() if hasattr(x, "label") else str(x)
+
+
+# --- the representative subset of the paper grid ---------------------------------------------------
+DIST_CASES = [(_dist(s, sq), _tcn(TCONORM_SETTINGS[(2 * i + sq) % len(TCONORM_SETTINGS)]))
+              for i, s in enumerate(DISTRIBUTION_SETTINGS) for sq in (False, True)]
+TCONORM_CASES = [(_dist(DISTRIBUTION_SETTINGS[(3 * i) % len(DISTRIBUTION_SETTINGS)], i % 2 == 1), _tcn(s))
+                 for i, s in enumerate(TCONORM_SETTINGS)]
+
+
+@pytest.mark.parametrize("dist,tcn", DIST_CASES, ids=[f"{d.label()}|{t.label()}" for d, t in DIST_CASES])
+def test_every_distribution_setting_f64(dist, tcn):
+    assert_parity_f64(dist, tcn)
+
+
+@pytest.mark.parametrize("dist,tcn", TCONORM_CASES, ids=[f"{d.label()}|{t.label()}" for d, t in TCONORM_CASES])
+def test_every_tconorm_setting_f64(dist, tcn):
+    assert_parity_f64(dist, tcn, eps=0.0 if tcn.name == "max" else 1e-3)
+
+
+@pytest.mark.parametrize("camera", ["perspective", "orthographic", "intrinsics", "orbit"])
+@pytest.mark.parametrize("blend", ["softmax", "hard"])
+def test_blends_cameras_colours_f64(blend, camera):
+    colors = "face" if camera in ("intrinsics", "orbit") else "vertex"
+    assert_parity_f64(gendr.distribution("logistic"), gendr.tconorm("probabilistic"), blend=blend, camera=camera,
+                      colors=colors, light_direction=(-0.6, 0.5, -1.0))
+
+
+@pytest.mark.parametrize("blend", ["softmax", "hard"])
+def test_cull_backfaces_no_colours_f64(blend):
+    assert_parity_f64(gendr.distribution("gaussian", squared=True), gendr.tconorm("einstein"), blend=blend,
+                      cull_backfaces=True, background=(0.2, 0.3, 0.4))
+
+
+F32_CASES = [("logistic", {}, "probabilistic", {}), ("logistic", {"squared": True}, "probabilistic", {}),
+             ("gaussian", {}, "max", {}), ("gamma", {"shape": 0.5}, "aczel_alsina", {"p": 4.0}),
+             ("gamma", {"shape": 3.0, "reversed": True}, "frank", {"p": 0.1}),
+             ("exponential", {"reversed": True}, "yager", {"p": 2.0}), ("laplace", {}, "hamacher", {"p": 0.5}),
+             ("cauchy", {"squared": True}, "dombi", {"p": 4.0}), ("levy", {"reversed": True}, "schweizer_sklar", {"p": -4.0}),
+             ("wigner_semicircle", {}, "einstein", {}), ("heaviside", {}, "or", {})]
+WELL_CONDITIONED = {0, 1, 2, 10}
+
+
+@pytest.mark.parametrize("i", range(len(F32_CASES)), ids=[f"{c[0]}{c[1]}|{c[2]}{c[3]}" for c in F32_CASES])
+def test_float32(i):
+    dn, dkw, tn, tkw = F32_CASES[i]
+    dist, tcn = gendr.distribution(dn, **dkw), gendr.tconorm(tn, **tkw)
+    d32 = run("drjit", dist, tcn, dtype=torch.float32)
+    fwd, bwd, scale = compare(d32, run("torch", dist, tcn))
+    assert fwd <= F32_FWD_VS_F64, f"float32 forward vs float64 reference: {fwd:.3g}"
+    for k, e in bwd.items():
+        assert e <= F32_GRAD_VS_F64 * scale[k] + 1e-5, f"float32 gradient w.r.t. {k} vs float64: {e:.3g} (max {scale[k]:.3g})"
+    if i in WELL_CONDITIONED:
+        fwd, bwd, scale = compare(d32, run("torch", dist, tcn, dtype=torch.float32))
+        assert fwd <= F32_FWD_VS_TORCH32, f"float32 forward vs torch float32: {fwd:.3g}"
+        for k, e in bwd.items():
+            assert e <= F32_GRAD_VS_TORCH32 * max(scale[k], 1e-3), f"float32 gradient w.r.t. {k} vs torch: {e:.3g}"
+
+
+def test_float32_rgb_softmax():
+    dist, tcn = gendr.distribution("logistic"), gendr.tconorm("probabilistic")
+    fwd, bwd, scale = compare(run("drjit", dist, tcn, dtype=torch.float32, blend="softmax", colors="vertex"),
+                              run("torch", dist, tcn, blend="softmax", colors="vertex"))
+    assert fwd <= F32_FWD_VS_F64
+    for k, e in bwd.items():
+        assert e <= F32_GRAD_VS_F64 * scale[k] + 1e-5, k
+
+
+def test_batched_camera_f64():
+    """A batch of orbit views of one (unbatched) mesh: camera batch 3, vertices [V, 3]."""
+    outs = []
+    for be in ("drjit", "torch"):
+        az = torch.tensor([0.0, 25.0, -40.0], dtype=torch.float64, requires_grad=True)
+        v = scene_vertices()[0].clone().requires_grad_(True)
+        cam = gendr.orbit_camera(az, 10.0, 3.2)
+        r = gendr.Renderer("logistic", gendr.tconorm("yager", p=2.0), tau=0.1, image_size=(H, W), backend=be,
+                           blend="softmax")
+        img = r.render(v, FACES_SOFTMAX, cam, vertex_colors=vertex_colors())
+        assert img.shape == (3, H, W, 4)
+        w = torch.randn(img.shape, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
+        gv, ga = torch.autograd.grad((img * w).sum(), [v, az])
+        outs.append((img.detach(), gv, ga))
+    for a, b in zip(*outs):
+        assert float((a - b).abs().max()) <= F64_TOL
+
+
+# --- other input kinds ------------------------------------------------------------------------------
+def test_numpy_inputs_give_a_drjit_tensor_of_the_vertices_dtype():
+    for dt, tt in ((np.float32, torch.float32), (np.float64, torch.float64)):
+        v = scene_vertices().numpy().astype(dt)
+        cam = gendr.PerspectiveCamera(eye=(0.1, 0.05, 3.0))
+        r = gendr.Renderer("logistic", "probabilistic", tau=0.1, image_size=(H, W), backend="drjit", blend="softmax")
+        img = r.render(v, FACES_SOFTMAX.numpy(), cam, vertex_colors=vertex_colors().numpy())
+        assert dr.is_tensor_v(img) and img.shape == (2, H, W, 4)
+        assert dr.type_v(img) == (dr.VarType.Float32 if dt == np.float32 else dr.VarType.Float64)
+        ref = gendr.Renderer("logistic", "probabilistic", tau=0.1, image_size=(H, W), blend="softmax").render(
+            torch.tensor(v), FACES_SOFTMAX, cam, vertex_colors=vertex_colors().to(tt))
+        out = r.to_numpy(img)
+        assert isinstance(out, np.ndarray) and out.dtype == dt
+        # (float32: softmax with γ = 1e-4 amplifies depth rounding 1e4-fold; both backends are float32 here)
+        assert np.abs(out - ref.numpy()).max() <= (2e-4 if dt == np.float32 else F64_TOL)
+
+
+def _torch_reference(w_seed=3):
+    v_t = scene_vertices().requires_grad_(True)
+    tau_t = torch.tensor(0.1, dtype=torch.float64, requires_grad=True)
+    cam_t, P = make_camera("perspective")
+    img_t = gendr.Renderer("gaussian", "einstein", tau=tau_t, image_size=(H, W), blend=None).render(v_t, FACES, cam_t)
+    w = torch.randn(img_t.shape, generator=torch.Generator().manual_seed(w_seed), dtype=torch.float64)
+    gv, gt, ge, gf = torch.autograd.grad((img_t * w).sum(), [v_t, tau_t, P["eye"], P["fov_y"]])
+    return img_t.detach(), w, gv, gt, ge, gf
+
+
+def test_drjit_inputs_gradients_through_drjit():
+    """Dr.Jit tensors in (vertices, camera eye as a tensor, fov_y as an Array of width 1): a Dr.Jit
+    tensor out, AD through Dr.Jit."""
+    from drjit.llvm.ad import Float64, TensorXf64
+    img_t, w, gv, _, ge, gf = _torch_reference()
+    v = TensorXf64(scene_vertices().numpy())
+    eye = TensorXf64(np.array([0.1, 0.05, 3.0]))
+    fov = Float64(40.0)
+    for x in (v, eye, fov):
+        dr.enable_grad(x)
+    r = gendr.Renderer("gaussian", "einstein", tau=0.1, image_size=(H, W), blend=None, backend="drjit")
+    img = r.render(v, FACES.numpy(), gendr.PerspectiveCamera(eye=eye, fov_y=fov))
+    assert dr.is_tensor_v(img) and img.shape == (2, H, W, 4)
+    assert np.abs(img.numpy() - img_t.numpy()).max() <= F64_TOL
+    dr.backward(dr.sum((img * TensorXf64(w.numpy())).array))
+    assert np.abs(dr.grad(v).numpy() - gv.numpy()).max() <= F64_TOL
+    assert np.abs(dr.grad(eye).numpy() - ge.numpy()).max() <= F64_TOL
+    assert abs(float(dr.grad(fov).numpy()[0]) - float(gf)) <= F64_TOL
+
+
+def test_drjit_tau_tensor():
+    from drjit.llvm.ad import TensorXf64
+    img_t, w, _, gt, _, _ = _torch_reference()
+    tau = TensorXf64(np.array(0.1))
+    dr.enable_grad(tau)
+    r = gendr.Renderer("gaussian", "einstein", tau=tau, image_size=(H, W), blend=None, backend="drjit")
+    img = r.render(scene_vertices().numpy(), FACES.numpy(), gendr.PerspectiveCamera(eye=(0.1, 0.05, 3.0)))
+    dr.backward(dr.sum((img * TensorXf64(w.numpy())).array))
+    assert abs(float(dr.grad(tau).numpy()) - float(gt)) <= F64_TOL
+
+
+def test_torch_training_loop_switches_backend_with_one_argument():
+    """A few Adam steps on the vertices give the same trajectory with either backend."""
+    target = gendr.Renderer("logistic", "probabilistic", tau=0.1, image_size=(H, W), blend=None).render(
+        scene_vertices() * 1.1, FACES, gendr.PerspectiveCamera()).detach()
+    finals = []
+    for be in ("torch", "drjit"):
+        v = scene_vertices().clone().requires_grad_(True)
+        opt = torch.optim.Adam([v], lr=0.01)
+        r = gendr.Renderer("logistic", "probabilistic", tau=0.1, image_size=(H, W), blend=None, backend=be)
+        for _ in range(5):
+            opt.zero_grad()
+            loss = ((r.render(v, FACES, gendr.PerspectiveCamera()) - target) ** 2).sum()
+            loss.backward()
+            opt.step()
+        finals.append(v.detach())
+    assert float((finals[0] - finals[1]).abs().max()) <= 1e-9
+
+
+# --- the whole grid (slow) ----------------------------------------------------------------------------
+@pytest.mark.slow
+@pytest.mark.parametrize("index", range(len(gendr.paper_grid())))
+def test_paper_grid_f64(index):
+    inst = gendr.paper_grid()[index]
+    assert_parity_f64(inst.distribution, inst.tconorm, eps=1e-3)
+
+
+def test_mixed_input_dtypes_follow_the_vertices():
+    """float32 vertices with float64 τ, camera parameters and integer colours: a float32 image,
+    gradients into every torch input in its own dtype."""
+    v = scene_vertices(torch.float32).requires_grad_(True)
+    tau = torch.tensor(0.1, dtype=torch.float64, requires_grad=True)
+    cam, P = make_camera("orbit", torch.float64)
+    cols = torch.randint(0, 2, (FACES_SOFTMAX.shape[0], 3))
+    r = gendr.Renderer("logistic", "probabilistic", tau=tau, image_size=(H, W), backend="drjit")
+    img = r.render(v, FACES_SOFTMAX, cam, face_colors=cols)
+    assert img.dtype == torch.float32
+    img.sum().backward()
+    assert v.grad.dtype == torch.float32 and tau.grad.dtype == torch.float64
+    assert all(torch.isfinite(x.grad).all() and x.grad.abs().sum() > 0 for x in (v, tau, *P.values()))
+    ref = gendr.Renderer("logistic", "probabilistic", tau=0.1, image_size=(H, W)).render(
+        scene_vertices(), FACES_SOFTMAX, make_camera("orbit")[0], face_colors=cols.double())
+    assert float((img.detach().double() - ref.detach()).abs().max()) <= 2e-4
