@@ -183,18 +183,8 @@ def setup_drjit(name, threads, tau=0.01):
 
 
 def kernel_stats(fn):
-    """Run fn once with Dr.Jit's kernel history: kernels launched / compiled, summed execution ms."""
-    import drjit as dr
-    dr.kernel_history_clear()
-    dr.set_flag(dr.JitFlag.KernelHistory, True)
-    try:
-        fn()
-        hist = dr.kernel_history()
-    finally:
-        dr.set_flag(dr.JitFlag.KernelHistory, False)
-    jit = [k for k in hist if k.get("type") == dr.KernelType.JIT]
-    return {"kernels_launched": len(jit), "kernels_compiled": sum(1 for k in jit if not k.get("cache_hit")),
-            "kernel_exec_ms": sum(k.get("execution_time", 0.0) for k in hist)}
+    from gendr_drjit.diagnostics import kernel_stats as stats  # only for --backend drjit
+    return stats(fn)
 
 
 def optimization_loop(modes, steps=100):
@@ -208,26 +198,18 @@ def optimization_loop(modes, steps=100):
     vs = [TensorXf((base + 1e-3 * rng.standard_normal(base.shape)).astype(np.float32)) for _ in range(steps)]
     dr.eval(vs)
     fb()  # warm
-    dr.kernel_history_clear()
-    dr.set_flag(dr.JitFlag.KernelHistory, True)
     times = []
-    try:
+
+    def loop():
         for v in vs:
             t0 = time.perf_counter()
             fb(r, v)
             times.append(time.perf_counter() - t0)
-        hist = dr.kernel_history()
-        dr.kernel_history_clear()
-        for t in (0.011, 0.012, 0.013, 0.014, 0.015):
-            fb(modes["_renderer"](t))
-        hist_tau = dr.kernel_history()
-    finally:
-        dr.set_flag(dr.JitFlag.KernelHistory, False)
 
-    def compiled(h):
-        return sum(1 for k in h if k.get("type") == dr.KernelType.JIT and not k.get("cache_hit"))
-    return summary(times) | {"steps": steps, "total_s": sum(times), "kernels_compiled": compiled(hist),
-                             "kernels_compiled_tau_changes": compiled(hist_tau)}
+    steps_stats = kernel_stats(loop)
+    tau_stats = kernel_stats(lambda: [fb(modes["_renderer"](t)) for t in (0.011, 0.012, 0.013, 0.014, 0.015)])
+    return summary(times) | {"steps": steps, "total_s": sum(times), "kernels_compiled": steps_stats["kernels_compiled"],
+                             "kernels_compiled_tau_changes": tau_stats["kernels_compiled"]}
 
 
 def run_case(backend, name, repeats, threads):

@@ -10,20 +10,9 @@ dr = pytest.importorskip("drjit", reason="the Dr.Jit backend needs drjit (pip in
 
 import gendr  # noqa: E402
 from gendr.scenes import icosphere  # noqa: E402
+from gendr_drjit.diagnostics import kernel_stats  # noqa: E402
 
 MESH = icosphere(2)
-
-
-def _compiled(fn):
-    dr.kernel_history_clear()
-    dr.set_flag(dr.JitFlag.KernelHistory, True)
-    try:
-        fn()
-        hist = dr.kernel_history()
-    finally:
-        dr.set_flag(dr.JitFlag.KernelHistory, False)
-    jit = [k for k in hist if k.get("type") == dr.KernelType.JIT]
-    return sum(1 for k in jit if not k.get("cache_hit")), len(jit)
 
 
 def _fwd_bwd(tau, verts, fov=40.0):
@@ -44,9 +33,9 @@ def test_changing_tau_vertices_and_camera_compiles_nothing():
     _fwd_bwd(0.01, base)  # compile (or load) once
     rng = np.random.default_rng(0)
     for tau, fov in ((0.012, 40.0), (0.02, 41.5), (0.005, 38.0)):
-        compiled, launched = _compiled(lambda: _fwd_bwd(tau, base + 0.01 * rng.standard_normal(base.shape).astype(np.float32), fov))
-        assert compiled == 0, f"tau={tau}, fov={fov}: {compiled} kernels compiled"
-        assert launched <= 40
+        stats = kernel_stats(lambda: _fwd_bwd(tau, base + 0.01 * rng.standard_normal(base.shape).astype(np.float32), fov))
+        assert stats["kernels_compiled"] == 0, f"tau={tau}, fov={fov}: {stats['kernels_compiled']} kernels compiled"
+        assert stats["kernels_launched"] <= 40
 
 
 def test_tau_changes_the_image():
