@@ -28,6 +28,7 @@ APT_PACKAGES=(
     libosmesa6                              # pyrender offscreen (PYOPENGL_PLATFORM=osmesa)
     libegl1 libegl-mesa0 libgl1-mesa-dri    # pyrender with PYOPENGL_PLATFORM=egl
     libgl1 libopengl0                       # `import pyrender` loads libGL even headless
+    chromium                                # headless check that validation reports render
 )
 
 # pyrender 0.1.45 pins PyOpenGL==3.1.0, which fails on osmesa; the `validation` extra brings
