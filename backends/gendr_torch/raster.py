@@ -2,10 +2,12 @@
 
 Never materialises B·H·W·F. Per face we build a screen-space bounding box grown by the culling
 distance of the distribution (coverage < eps beyond it), enumerate the pixels of each box directly,
-and process the pairs in row bands of at most ``max_pairs`` pairs. Each band is checkpointed when
-gradients are needed, so its per-pair intermediates exist only while that band is computed or
-recomputed (memory O(pixels + faces + max_pairs)). All per-pair math is plain autograd, so
-gradients are exact w.r.t. everything upstream (vertices, camera, τ, colours).
+and process the pairs in row bands of at most ``max_pairs`` pairs (memory O(pixels + faces +
+max_pairs)). Alpha is one autograd Function (:class:`SoftAlpha`): its backward recomputes each band
+and applies the analytic derivative of the distance, with the coverage/generator derivative from
+local autograd on the spec formulas, so nothing per pair is stored. The RGB blends are plain
+autograd per band, checkpointed when there are several bands. Gradients are exact w.r.t.
+everything upstream (vertices, camera, τ, colours).
 """
 from __future__ import annotations
 
@@ -362,7 +364,7 @@ class SoftAlpha(torch.autograd.Function):
     def forward(ctx, X, Y, tau, plan):
         s = plan.settings
         dist, tcn, eps = s.distribution, s.tconorm, s.eps
-        H, W = s.image_size
+        W = s.image_size[1]
         B = plan.fc.B
         geom = edge_table(X, Y)
         parts = []
@@ -399,8 +401,7 @@ class SoftAlpha(torch.autograd.Function):
         plan = ctx.plan
         s = plan.settings
         dist, tcn, eps = s.distribution, s.tconorm, s.eps
-        H, W = s.image_size
-        B, K = plan.fc.B, plan.fc.K
+        K = plan.fc.K
         if tcn.kind not in (ARCHIMEDEAN, MAX):
             return None, None, None, None
         if tcn.kind == ARCHIMEDEAN:  # dL/dS = dL/dA · dA/dS, per pixel
