@@ -21,7 +21,7 @@ ENTRY_POINT_GROUP = "gendr.backends"
 class RenderSettings:
     """Everything that defines an image besides the mesh and the camera (validated, frozen).
 
-    distances are in screen units of 2/H pixel widths... i.e. one unit = H/2 pixels (DESIGN.md §3).
+    Distances (and τ) are in screen units: one unit = H/2 pixels, NDC for square images (DESIGN.md §3).
     """
 
     distribution: Distribution
