@@ -6,7 +6,8 @@ validated parameters and the ``reversed`` / ``shift`` / ``squared`` variants (DE
 
 * plain:    p = F(d / τ)
 * squared:  p = F(d·|d| / τ)
-* reversed: F_rev(x) = 1 − F(−x)
+* reversed: F_rev(x) = 1 − F(−x), evaluated as exp(log(1 − F(−x))) so that its tail keeps its
+  relative accuracy (1 − F(−x) rounds every value below ~1e-16 to a multiple of 2⁻⁵³)
 * shifted:  F(x + shift)
 """
 from __future__ import annotations
@@ -91,6 +92,8 @@ class Distribution:
         f, kw = self.family, self.kwargs
         x = x + self.shift if self.shift else x
         if self.reversed:
+            if f.log_sf is not None:
+                return ops.exp(f.log_sf(ops, -x, **kw))
             return 1.0 - f.cdf(ops, -x, **kw)
         return f.cdf(ops, x, **kw)
 

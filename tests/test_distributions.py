@@ -309,6 +309,29 @@ def test_log_tails_against_reference(d):
         assert np.all(mine[r == 0.0] < -690)
 
 
+@pytest.mark.parametrize("d", [d for d in PLAIN if d.differentiable], ids=ids)
+def test_reversed_cdf_tail_is_relatively_accurate(d):
+    """F_rev(x) = 1 − F(−x) deep in its left tail (tiny values) keeps relative accuracy: written as
+    1 − F(−x) it would round every value below ~1e-16 to a multiple of 2⁻⁵³, which made softmax
+    colours of reversed squared instances jump (the weights p·exp(z/γ) compete with a tiny
+    background weight far outside the mesh)."""
+    ref, x = _reference(d), -np.geomspace(1e-3, 1e12, 451)  # far enough for the heavy tails
+    if d.name == "reciprocal":
+        ref_sf = 0.5 / (1.0 - x)  # its closed-form reference cdf above cancels for x < 0
+    elif d.name in SYMMETRIC:
+        ref_sf = ref.cdf(x)  # sf(−x) = cdf(x) for the symmetric families
+    elif d.name == "gamma":
+        ref_sf = special.gammaincc(d.kwargs["shape"], -x)
+    else:
+        ref_sf = ref.sf(-x)
+    r = distribution(d.name, reversed=True, **d.kwargs).cdf(O, x)
+    m = (ref_sf > 1e-300) & (ref_sf < 1e-3)
+    assert m.sum() >= 10 or d.support()[1] < 1e3  # bounded families have few tail points
+    # same tolerances as the log tails: exp(log Q) adds ≤ |log Q|·1e-16 relative
+    rtol = 3e-6 if d.name == "gamma" else (1e-9 if d.name == "cauchy" else 1e-10)
+    np.testing.assert_allclose(r[m], ref_sf[m], rtol=rtol, atol=0)
+
+
 def test_gaussian_and_gumbel_far_tails():
     g, gmax, gmin = distribution("gaussian"), distribution("gumbel_max"), distribution("gumbel_min")
     x = np.array([5.0, 6.5, 10.0, 30.0, 37.0, 100.0, 1e3])
