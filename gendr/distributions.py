@@ -103,16 +103,30 @@ class Distribution:
         return f.pdf(ops, -x if self.reversed else x, **kw)
 
     def log_sf(self, ops, x):
-        """log(1 − F(x)) of the effective CDF, accurate where the family supplies it."""
+        """log(1 − F(x)) of the effective CDF, relatively accurate everywhere (see cdf_and_log_sf)."""
+        return self._log_sf(ops, x, self.cdf(ops, x))
+
+    def cdf_and_log_sf(self, ops, x):
+        """``(F(x), log(1 − F(x)))``, F evaluated once.
+
+        Where F < 1/2 the log is log1p(−F): the families' log-survival formulas are written for the
+        upper half and may round log(1 − F) to 0 for tiny F (Gaussian, Cauchy), which T-conorm
+        generators with small exponents, e.g. (−log(1 − p))^0.25, turn into large absolute errors.
+        """
+        F = self.cdf(ops, x)
+        return F, self._log_sf(ops, x, F)
+
+    def _log_sf(self, ops, x, F):
         f, kw = self.family, self.kwargs
         x = x + self.shift if self.shift else x
         if self.reversed:  # 1 − F_rev(x) = F(−x)
-            if f.log_cdf is not None:
-                return f.log_cdf(ops, -x, **kw)
-            return ops.log(f.cdf(ops, -x, **kw))
-        if f.log_sf is not None:
-            return f.log_sf(ops, x, **kw)
-        return ops.log1p(-f.cdf(ops, x, **kw))
+            upper = f.log_cdf(ops, -x, **kw) if f.log_cdf is not None else ops.log(f.cdf(ops, -x, **kw))
+        elif f.log_sf is not None:
+            upper = f.log_sf(ops, x, **kw)
+        else:
+            upper = ops.log1p(-f.cdf(ops, x, **kw))
+        lower = F < 0.5
+        return ops.where(lower, ops.log1p(-ops.where(lower, F, 0.0)), upper)
 
     def support(self) -> tuple[float, float]:
         lo, hi = self.family.support(**self.kwargs)
@@ -132,8 +146,7 @@ class Distribution:
 
     def coverage(self, ops, d, tau):
         """Soft coverage ``(p, log(1 − p))`` of signed distances ``d`` at scale ``tau``."""
-        x = self.argument(ops, d, tau)
-        return self.cdf(ops, x), self.log_sf(ops, x)
+        return self.cdf_and_log_sf(ops, self.argument(ops, d, tau))
 
     def quantile(self, q: float) -> float:
         """Smallest x with F(x) >= q (float64 bisection on the CDF; ``-inf`` if F(x) >= q for all x)."""

@@ -335,8 +335,7 @@ class Plan:
 def _generator_terms(dist, tcn, x, eps):
     """Per-pair generator values g(p) (0 where saturated or culled by p < eps) and the mask of
     saturated pairs (p = 1, or g overflowed), which set their pixel's alpha to 1."""
-    p = dist.cdf(ops, x)
-    log1m = dist.log_sf(ops, x)
+    p, log1m = dist.cdf_and_log_sf(ops, x)
     sat = ~torch.isfinite(log1m)
     g = tcn.generator(ops, torch.where(sat, 0.5, p), torch.where(sat, math.log(0.5), log1m))
     over = ~torch.isfinite(g)
