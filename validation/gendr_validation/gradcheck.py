@@ -3,9 +3,9 @@
 For an instance of ``gendr.paper_grid()`` and a parameter family θ (vertex positions, camera pose,
 τ), a random unit direction u gives a one-parameter image f(t) = render(θ + t·u). We compare
 
-* per pixel (all 4 channels): the AD directional derivative J·u with the central difference
-  (f(t + h/2) − f(t − h/2)) / h;
-* a scalar loss L = Σ w ⊙ f with fixed random weights w: ∇L·u by AD vs the central difference of L.
+* per pixel (all 4 channels): the AD directional derivative J·u with the Richardson-extrapolated
+  central difference (4·D(h/2) − D(h))/3, D(k) = (f(t + k/2) − f(t − k/2)) / k (fourth order);
+* a scalar loss L = Σ w ⊙ f with fixed random weights w: ∇L·u by AD vs the same difference of L.
 
 Error metric: |a − r| / max(|r|, floor) (Mitsuba's AD tests), with thresholds on the mean and the
 max over pixels (:data:`THRESHOLDS`). The step sizes are recorded with every result.
@@ -35,9 +35,11 @@ from gendr.scenes import icosphere
 H_DEFAULT, W_DEFAULT = 8, 12
 TAU = 0.08          # screen units (1 unit = H/2 px): ~0.3 px at 8 px high
 TAU_SQUARED = TAU ** 2
-# h, in units of the direction (τ: relative). Camera: at 1e-5 degrees the loss FD is round-off bound
-# (#649 exponential+rev|probabilistic: rel. error 1.8e-3, 2.2e-6, 2.0e-5, 5.6e-5 at h = 1e-3 … 1e-6)
-STEPS = {"vertices": 1e-6, "vertices_unlit": 1e-6, "camera": 1e-4, "tau": 1e-7}
+# h, in units of the direction (τ: relative); the reference derivative is Richardson-extrapolated
+# from central differences with steps h and h/2 (:func:`richardson`). Camera: at 1e-5 degrees the loss
+# FD is round-off bound (#649 exponential+rev|probabilistic). τ: at 1e-7 small losses were round-off
+# bound (#1207 levy+rev|dombi(0.5): loss error 7.7e-5 at h = 1e-7, 6e-8 at 1e-4).
+STEPS = {"vertices": 1e-6, "vertices_unlit": 1e-6, "camera": 1e-4, "tau": 1e-5}
 FLOOR = 1e-3
 THRESHOLDS = {"pixel_mean": 1e-4, "pixel_max": 1e-2, "loss": 1e-5}
 PARAMS = ("vertices", "vertices_unlit", "camera", "tau")
@@ -168,6 +170,17 @@ class GradResult:
                 and self.loss_err <= THRESHOLDS["loss"] and math.isfinite(self.loss_ad))
 
 
+def richardson(at, h):
+    """Reference derivative of s -> at(s) at 0: Richardson-extrapolated central differences,
+    (4·D(h/2) − D(h))/3 with D(k) = (at(k/2) − at(−k/2))/k. Fourth order: the h² truncation term of
+    one central difference (which made strongly curved instances, e.g. levy+sq|schweizer_sklar(−4),
+    need steps so small that round-off dominated small losses) cancels. Returns (derivative,
+    at(h/2), at(−h/2))."""
+    fp, fm = at(h / 2), at(-h / 2)
+    d_half = (at(h / 4) - at(-h / 4)) / (h / 2)
+    return (4.0 * d_half - (fp - fm) / h) / 3.0, fp, fm
+
+
 def check_instance(adapter, inst, *, H=H_DEFAULT, W=W_DEFAULT, seed=0, params=PARAMS, keep_images=False):
     """Gradient check of one grid instance; returns ([GradResult], images for the report or None)."""
     mesh = grid_scene()
@@ -183,36 +196,27 @@ def check_instance(adapter, inst, *, H=H_DEFAULT, W=W_DEFAULT, seed=0, params=PA
         if param.startswith("vertices"):
             u = rng.standard_normal(mesh.vertices.shape)
             u /= np.abs(u).max()
-            fp = adapter.render(inst, mesh, cam, tau, H, W, verts=mesh.vertices + h / 2 * u, shading=shading)
-            fm = adapter.render(inst, mesh, cam, tau, H, W, verts=mesh.vertices - h / 2 * u, shading=shading)
-            fd_full = (fp - fm) / h
-            idx = _sample_outputs(fd_full, rng)
-            ad = _scatter(adapter.per_pixel(inst, mesh, cam, tau, H, W, param, u, idx, shading), idx, fd_full.shape)
+            at = lambda s: adapter.render(inst, mesh, cam, tau, H, W, verts=mesh.vertices + s * u, shading=shading)
         elif param == "camera":
             u = rng.standard_normal(3)
             u /= np.abs(u).max()
             u *= np.array([1.0, 1.0, 0.05])  # degrees, degrees, world units
-            shift = lambda s: {**cam, "azimuth": cam["azimuth"] + s * u[0], "elevation": cam["elevation"] + s * u[1],
-                               "distance": cam["distance"] + s * u[2]}
-            fp = adapter.render(inst, mesh, shift(h / 2), tau, H, W, shading=shading)
-            fm = adapter.render(inst, mesh, shift(-h / 2), tau, H, W, shading=shading)
-            fd_full = (fp - fm) / h
-            idx = _sample_outputs(fd_full, rng)
-            ad = _scatter(adapter.per_pixel(inst, mesh, cam, tau, H, W, param, u, idx, shading), idx, fd_full.shape)
+            at = lambda s: adapter.render(inst, mesh, {**cam, "azimuth": cam["azimuth"] + s * u[0],
+                                                       "elevation": cam["elevation"] + s * u[1],
+                                                       "distance": cam["distance"] + s * u[2]}, tau, H, W, shading=shading)
         else:
             u = tau  # relative step: d/dt f(τ + t·τ)
-            fp = adapter.render(inst, mesh, cam, tau * (1 + h / 2), H, W, shading=shading)
-            fm = adapter.render(inst, mesh, cam, tau * (1 - h / 2), H, W, shading=shading)
-            fd_full = (fp - fm) / h
-            idx = np.argsort(-np.abs(fd_full).reshape(-1))[:TAU_SAMPLES]
-            ad_s = adapter.tau_outputs(inst, mesh, cam, tau, H, W, idx, shading) * tau
-            ad = np.full(H * W * 4, np.nan)
-            ad[idx] = ad_s
-            ad = ad.reshape(H, W, 4)
-        fd = (fp - fm) / h
+            at = lambda s: adapter.render(inst, mesh, cam, tau * (1 + s), H, W, shading=shading)
+        fd, fp, fm = richardson(at, h)
+        if param == "tau":
+            idx = np.argsort(-np.abs(fd).reshape(-1))[:TAU_SAMPLES]
+            ad = _scatter(adapter.tau_outputs(inst, mesh, cam, tau, H, W, idx, shading) * tau, idx, fd.shape)
+        else:
+            idx = _sample_outputs(fd, rng)
+            ad = _scatter(adapter.per_pixel(inst, mesh, cam, tau, H, W, param, u, idx, shading), idx, fd.shape)
         mask = np.isfinite(ad)
         err = rel_error(ad[mask], fd[mask])
-        loss_fd = float(((fp - fm) * weights).sum() / h)
+        loss_fd = float((fd * weights).sum())
         loss_ad = adapter.loss_grad(inst, mesh, cam, tau, H, W, weights, param, u, shading)
         loss_err = abs(loss_ad - loss_fd) / max(abs(loss_fd), FLOOR)
         dt = time.perf_counter() - t0
