@@ -473,7 +473,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "OUTDIR/report.html (self-contained) and OUTDIR/summary.json; exit status 1 if a check fails.",
         epilog="examples:\n"
                "  gendr validate --quick -o validation_report      # < 2 minutes\n"
-               "  gendr validate --full -o full_report --instances all\n"
+               "  gendr validate --full -o full_report --instances all --jobs 2\n"
                "  gendr validate --instances 0,271 --scenes cube,torus --backends torch -o r")
     p.add_argument("-o", "--output", default="validation_report", metavar="OUTDIR", help="directory to write into (default: %(default)s)")
     mode = p.add_mutually_exclusive_group()
@@ -487,6 +487,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--references", default=None, metavar="A,B",
                    help="pyrender-osmesa, pyrender-egl, mitsuba-scalar_rgb, mitsuba-llvm_ad_rgb (default: pyrender-osmesa,mitsuba-scalar_rgb)")
     p.add_argument("--progress", action="store_true", help="show progress bars even when stderr is not a terminal")
+    p.add_argument("--jobs", type=_positive_int, default=1, metavar="N",
+                   help="run the gradient checks in N single-threaded worker processes (default: %(default)s)")
     p.set_defaults(func=_cmd_validate)
 
     # gallery -----------------------------------------------------------------------------------

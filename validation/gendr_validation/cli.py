@@ -16,7 +16,7 @@ def validate_main(args) -> int:
         instances = _csv(instances)
     summary = report.run(backends=_csv(args.backends), instances=instances, scenes=_csv(args.scenes), quick=quick,
                          outdir=args.output, references=_csv(args.references), mesh_files=args.mesh or (),
-                         progress=True if args.progress else None)
+                         progress=True if args.progress else None, jobs=args.jobs)
     print(f"report: {args.output}/report.html  summary: {args.output}/summary.json")
     return 0 if summary["passed"] else 1
 

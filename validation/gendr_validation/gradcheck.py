@@ -251,6 +251,11 @@ QUICK_NAMES = ("uniform|max", "logistic|probabilistic", "gaussian|einstein", "ca
                "exponential+rev|probabilistic", "uniform+sq|probabilistic")
 
 
+def instance_by_index(index):
+    """The grid instance with this index (for worker processes, which get indices, not objects)."""
+    return gendr.paper_grid()[index]
+
+
 def select_instances(spec):
     """``spec``: "all", "quick" (a spread of distributions × T-conorms), or a list/comma string of indices."""
     grid = differentiable_instances()

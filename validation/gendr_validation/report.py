@@ -100,9 +100,42 @@ def _grad_plot(grad_results):
     return _plot_b64(fig)
 
 
+_ADAPTER_CACHE = {}
+
+
+def _grad_task(task):
+    """One gradient check (backend name, grid index, keep images) -> (results, images or None)."""
+    b, index, keep = task
+    if b not in _ADAPTER_CACHE:
+        _ADAPTER_CACHE[b] = gradcheck.ADAPTERS[b]()
+    inst = gradcheck.instance_by_index(index)
+    return gradcheck.check_instance(_ADAPTER_CACHE[b], inst, keep_images=keep)
+
+
+def _single_threaded():
+    """Worker-process initializer: one compute thread per process (torch, OpenMP, Dr.Jit)."""
+    os.environ["OMP_NUM_THREADS"] = "1"
+    try:
+        import torch
+        torch.set_num_threads(1)
+    except ImportError:
+        pass
+    try:
+        import drjit
+        drjit.set_thread_count(1)
+    except ImportError:
+        pass
+
+
 def run(backends=None, instances="quick", scenes=None, quick=True, outdir="validation_report", references=None,
-        limit_instances=None, size=None, cameras=None, mesh_files=(), progress=None, stream=None):
-    """Run everything and write ``outdir/report.html`` and ``outdir/summary.json``. Returns the summary dict."""
+        limit_instances=None, size=None, cameras=None, mesh_files=(), progress=None, stream=None, jobs=1):
+    """Run everything and write ``outdir/report.html`` and ``outdir/summary.json``. Returns the summary dict.
+
+    ``jobs`` > 1 runs the gradient checks in that many single-threaded worker processes (the checks
+    are independent and each renders tiny 8×12 images, where one thread per process is fastest).
+    """
+    if not isinstance(jobs, int) or isinstance(jobs, bool) or jobs < 1:
+        raise gendr.ParameterError(f"jobs={jobs!r} must be an integer >= 1")
     stream = stream or sys.stdout
     t_start = time.perf_counter()
     notes = []
@@ -139,13 +172,24 @@ def run(backends=None, instances="quick", scenes=None, quick=True, outdir="valid
             notes.append(f"gradient check: no gradient adapter for backend {b!r} (validation/gendr_validation/gradcheck.py ADAPTERS)")
     prog = Progress(len(gb) * len(ginst), "gradients", enabled=progress)
     t0 = time.perf_counter()
-    for b in gb:
-        ad = gradcheck.ADAPTERS[b]()
-        for k, inst in enumerate(ginst):
-            res, imgs = gradcheck.check_instance(ad, inst, keep_images=(k < 3))
+    tasks = [(b, inst.index, k < 3) for b in gb for k, inst in enumerate(ginst)]
+    if jobs > 1 and len(tasks) > 1:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+        with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn"),
+                                 initializer=_single_threaded) as pool:
+            outcomes = pool.map(_grad_task, tasks, chunksize=4)
+            for (b, index, _), (res, imgs) in zip(tasks, outcomes):
+                grad_results += res
+                if imgs:
+                    grad_images[(b, index)] = imgs
+                prog()
+    else:
+        for b, index, keep in tasks:
+            res, imgs = _grad_task((b, index, keep))
             grad_results += res
             if imgs:
-                grad_images[(b, inst.index)] = imgs
+                grad_images[(b, index)] = imgs
             prog()
     parity = gradcheck.backend_parity(bnames, ginst)
     t_grad = time.perf_counter() - t0
