@@ -12,7 +12,9 @@ def adapter():
     return gc.TorchAdapter()
 
 
-@pytest.mark.parametrize("index", [0, 271, 164])
+# 676 exponential+rev+sq|probabilistic and 177 gaussian|aczel_alsina(0.25): regressions of the
+# reversed-CDF tail and log(1 − F) precision bugs (their differences did not converge before)
+@pytest.mark.parametrize("index", [0, 271, 164, 676, 177])
 def test_gradients_match_finite_differences(adapter, index):
     inst = gendr.paper_grid()[index]
     res, _ = gc.check_instance(adapter, inst, params=("vertices_unlit", "camera", "tau"))
@@ -42,10 +44,23 @@ def test_instance_selection():
         gc.select_instances("99999")
 
 
+#: checks whose loss misses the 1e-5 threshold by FD round-off, not by a wrong gradient
+#: (docs/validation.md §6): #444 reciprocal|yager(1), unlit vertices: AD 2.5e-9 vs FD −7.9e-9, a
+#: derivative that is zero to round-off; at a 10× step the same check passes (below)
+KNOWN_FD_LIMITED = {(444, "vertices_unlit")}
+
+
 @pytest.mark.slow
 def test_gradients_all_instances(adapter):
     bad = []
     for inst in gc.select_instances("all"):
         res, _ = gc.check_instance(adapter, inst, params=("vertices_unlit", "camera", "tau"))
-        bad += [(inst.index, r.param, r.pixel_max, r.loss_err) for r in res if not r.passed]
-    assert not bad, bad
+        bad += [(inst.index, r.param) for r in res if not r.passed]
+    assert set(bad) <= KNOWN_FD_LIMITED, bad
+
+
+@pytest.mark.parametrize("index,param", sorted(KNOWN_FD_LIMITED))
+def test_known_fd_limited_checks_pass_at_a_larger_step(adapter, index, param, monkeypatch):
+    monkeypatch.setitem(gc.STEPS, param, 10 * gc.STEPS[param])
+    res, _ = gc.check_instance(adapter, gendr.paper_grid()[index], params=(param,))
+    assert all(r.passed for r in res), [(r.pixel_max, r.loss_err) for r in res]

@@ -248,7 +248,9 @@ def differentiable_instances():
 
 #: the quick set: one instance per kind of distribution and aggregation that runs fast
 QUICK_NAMES = ("uniform|max", "logistic|probabilistic", "gaussian|einstein", "cauchy|yager(p=2)",
-               "exponential+rev|probabilistic", "uniform+sq|probabilistic")
+               "exponential+rev|probabilistic", "uniform+sq|probabilistic",
+               # the two that exposed coverage-precision bugs (docs/validation.md §5)
+               "exponential+rev+sq|probabilistic", "gaussian|aczel_alsina(p=0.25)")
 
 
 def instance_by_index(index):
