@@ -9,6 +9,8 @@ from gendr_validation import report  # noqa: E402
 
 
 def test_report_smoke(tmp_path):
+    import torch
+    threads = torch.get_num_threads()
     s = report.run(backends=["torch"], instances=[271], scenes=["cube"], outdir=str(tmp_path), size=(24, 32),
                    cameras=["perspective", "orthographic"], limit_instances=["heaviside|or", "logistic@tau->0"])
     html = (tmp_path / "report.html").read_text()
@@ -19,6 +21,7 @@ def test_report_smoke(tmp_path):
     assert hl["differ_unambiguous_total"] == 0 and hl["failed"] == 0
     assert js["gradients"]["checks"] == 4 and js["gradients"]["instances"] == [271]
     assert js["passed"] == s["passed"]
+    assert torch.get_num_threads() == threads  # run() uses one thread and restores the caller's setting
 
 
 def test_cli_validate_exit_code(tmp_path, capsys):
