@@ -66,29 +66,25 @@ def test_near_plane_clipping_and_batch_on_a_larger_image():
 
 
 @pytest.mark.parametrize("dist", ["cauchy", "logistic"])
-def test_all_faces_fallback_for_huge_tile_lists(monkeypatch, dist):
-    """Beyond MAX_TILE_ENTRIES (heavy tails at large sizes) every pixel loops over all faces of its
-    batch (memory O(F)); the result is the same as with tile lists."""
+def test_tile_masks_any_tile_size(monkeypatch, dist):
+    """Heavy tails (cauchy: infinite culling radius, every face in every tile's bit mask) and a
+    batch of 2: tiles of 4, 8 and 32 pixels and a bit-mask budget that forces the largest tile all
+    give the same image and gradients (tiles only choose which pairs are evaluated)."""
     torch = pytest.importorskip("torch")
     import gendr_drjit.raster as R
     v = torch.tensor(MESH.vertices)[None].repeat(2, 1, 1)
     v[1] = v[1] * 0.7
     faces = torch.tensor(MESH.faces)
     out = []
-    calls = []
-    real_bin = R.bin_faces
-    monkeypatch.setattr(R, "bin_faces", lambda *a: calls.append(real_bin(*a)) or calls[-1])
-    for limit, ratio in ((R.MAX_TILE_ENTRIES, R.FALLBACK_RATIO), (0, 1e9)):
-        monkeypatch.setattr(R, "MAX_TILE_ENTRIES", limit)
-        monkeypatch.setattr(R, "FALLBACK_RATIO", ratio)
+    for tile, budget in ((0, R.MASK_BYTES), (4, R.MASK_BYTES), (8, R.MASK_BYTES), (32, R.MASK_BYTES), (0, 1)):
+        monkeypatch.setattr(R, "TILE", tile)
+        monkeypatch.setattr(R, "MASK_BYTES", budget)
         vv = v.clone().requires_grad_(True)
         r = gendr.Renderer(dist, gendr.tconorm("dombi", p=2.0), tau=0.05, image_size=(24, 20), eps=1e-3,
                            backend="drjit", blend=None)
         img = r.render(vv, faces, gendr.orbit_camera(20.0, 10.0, 3.0))
         img.sum().backward()
         out.append((img.detach(), vv.grad))
-    # the second render used one list per batch element: every tile of a batch has the same range
-    start, end = calls[-1][0].numpy(), calls[-1][1].numpy()
-    assert len(set(start.tolist())) == 2 and len(set(end.tolist())) == 2
-    assert float((out[0][0] - out[1][0]).abs().max()) <= 1e-12
-    assert float((out[0][1] - out[1][1]).abs().max()) <= 1e-10
+    for o in out[1:]:
+        assert float((out[0][0] - o[0]).abs().max()) <= 1e-12
+        assert float((out[0][1] - o[1]).abs().max()) <= 1e-10

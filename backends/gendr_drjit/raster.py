@@ -5,16 +5,20 @@ Pipeline of one render (DESIGN.md §5; semantics identical to ``gendr_torch.rast
 1. vertices -> camera frame -> per-face polygons clipped at the near plane (3 corners, or 4 when
    some face crosses it) -> screen units; Lambert-lit corner colours and barycentric coefficients
    for the RGB blends. Ordinary Dr.Jit AD arrays, O(B·F) work.
-2. binning (host, NumPy, on detached data): each face's screen box grown by the distribution's
-   culling radius is split into TILE×TILE pixel tiles; per tile, the list of faces (ascending).
-3. a symbolic ``dr.while_loop`` per pixel over its tile's faces: signed distance to the polygon,
-   coverage p = F(x), generator g(p), summed (archimedean T-conorms). Reverse-mode AD through this
-   "sum loop" (``max_iterations=-1``) re-runs the loop body and scatters gradients into the face
-   arrays; nothing is stored per (pixel, face) pair.
+2. binning (device, detached; :class:`Bins`): per square tile a bit mask over the faces whose
+   screen box grown by the culling radius meets the tile (and whose signed distance at the tile
+   centre is within the radius plus the tile's half diagonal). Sizes depend only on (B, H, W, F):
+   nothing is read back, so a render can be frozen (``gendr_drjit.frozen``).
+3. a symbolic ``dr.while_loop`` per pixel (lanes in tile-major order, :class:`Pixels`) over its
+   tile's faces in ascending order: signed distance to the polygon, coverage p = F(x), generator
+   g(p), summed (archimedean T-conorms). Gradients: :class:`AlphaSum`, a custom op whose backward
+   is a second explicit loop (analytic distance derivative, local forward-mode derivative of the
+   spec formulas, scatter-adds into the face corners); nothing is stored per (pixel, face) pair.
 4. ``max`` / hard ``or`` / the hard z-buffer / the softmax maximum are not sums: a first loop
    without AD finds the arg-max (or the maximum) per pixel; the differentiable value is then
    re-evaluated for that one face (max, hard), or the maximum enters a second, summing loop as a
-   constant (softmax: weights p·exp((z̃ − m)/γ)).
+   constant (softmax: weights p·exp((z̃ − m)/γ)). These keep Dr.Jit's generic reverse-mode "sum
+   loop" (``max_iterations=-1``) on a linearised signed distance.
 
 τ, the camera parameters and the culling constants are opaque (not literals) so changing them does
 not recompile a kernel; the loop kernels depend only on the instance, image size, dtype and K.
@@ -28,13 +32,19 @@ import drjit as dr
 
 from gendr.tconorms import ARCHIMEDEAN, MAX
 
-TILE = 8
-#: above this many (tile, face) entries, when the tile lists are at least a quarter of "every tile
-#: lists every face" (heavy tails, huge τ), every pixel loops over all valid faces of its batch
-#: instead: memory O(F) rather than O(tiles·F), same result (the extra pairs are culled)
-MAX_TILE_ENTRIES = 1 << 22
-FALLBACK_RATIO = 4
+#: tile edges tried in order (see tile_size); TILE != 0 forces one
+TILES = (4, 8, 16, 32)
+TILE = 0
+#: memory budget of the per-tile face bit masks (tiles · ceil(F/32) · 4 bytes)
+MASK_BYTES = 64 << 20
+#: extra margin of the binning boxes, in pixels (float32 rounding of the box; culled pairs add 0)
+BIN_MARGIN = 1e-3
 GRAD_MODE = dr.ReduceMode.Auto
+#: the hand-written backward of the archimedean alpha sum (AlphaSum); False: Dr.Jit's generic
+#: reverse-mode sum loop
+CUSTOM_BACKWARD = True
+#: how AlphaSum's backward scatter-adds into the face corners (Expand: per-thread copies, no atomics)
+BWD_MODE = dr.ReduceMode.Expand
 _NONE = 0xFFFFFFFF
 
 
@@ -72,7 +82,11 @@ class Faces:
     area), front (counter-clockwise), near, far, shade (21 arrays or None), cull_lo."""
 
 
-def prepare_faces(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, colors, per_face):
+def prepare_faces(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, colors, per_face, clip=None, faces_u=None):
+    """``clip``: None decides from the data whether near-plane clipping (K = 4) is needed (a host
+    read); True / False force it (frozen replays, where nothing may be read back: ``fc.all_inside``
+    then holds the device-side answer, for the caller to verify afterwards). ``faces_u``: the faces
+    as a flat UInt32 array (default: converted from ``faces_np``)."""
     H, W = settings.image_size
     B, F = max(Bv, Bc), faces_np.shape[0]
     Float, UInt32 = T.Float, T.UInt32
@@ -88,12 +102,14 @@ def prepare_faces(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, color
     m = B * F
     fl = dr.arange(UInt32, m)
     b_f, f_f = fl // F, fl % F
-    faces_u = UInt32(faces_np.reshape(-1).astype(np.uint32))
+    if faces_u is None:
+        faces_u = UInt32(faces_np.reshape(-1).astype(np.uint32))
     vid = [dr.gather(UInt32, faces_u, f_f * 3 + c) for c in range(3)]
     corner = [tuple(dr.gather(Float, a, b_f * V + vid[c]) for a in (xv, yv, zv)) for c in range(3)]
     near = camera.near
     inside = [c[2] <= -near for c in corner]
-    all_inside = bool(dr.all(inside[0] & inside[1] & inside[2], axis=None)) if m else True
+    all_in = dr.all(inside[0] & inside[1] & inside[2], axis=None)
+    all_inside = (bool(all_in) if m else True) if clip is None else not clip
     if all_inside:
         poly, valid, K = corner, dr.full(T.Bool, True, m), 3
     else:
@@ -132,6 +148,7 @@ def prepare_faces(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, color
         Y.append(ny)
     fc = Faces()
     fc.B, fc.F, fc.K, fc.X, fc.Y, fc.valid = B, F, K, X, Y, valid
+    fc.all_inside = all_in
     fc.Xd, fc.Yd = [dr.detach(x) for x in X], [dr.detach(y) for y in Y]
     fc.ad = any(dr.grad_enabled(a) for a in X + Y)
     if fc.ad:  # corners flattened (face, corner) for the linearised distance (see signed_distance)
@@ -241,60 +258,154 @@ def _shading_data(settings, camera, ops, T, Pf, H, W, verts, Bv, V, B, F, b_f, f
 
 
 # ---------------------------------------------------------------------------------------------
-# binning (host side, detached)
+# binning (device side, detached): one bit mask over the faces per tile
 # ---------------------------------------------------------------------------------------------
-def bin_faces(fc, H, W, radius, T):
-    """Per tile (b, ty, tx): the ascending list of candidate faces. Returns (start, end, faces) as
-    Dr.Jit UInt32 arrays (start/end per tile) and the tile grid (ntx, nty)."""
-    K = fc.K
-    Xs = np.stack([dr.detach(x).numpy() for x in fc.X]).astype(np.float64)
-    Ys = np.stack([dr.detach(y).numpy() for y in fc.Y]).astype(np.float64)
-    valid = fc.valid.numpy().astype(bool)
-    ntx, nty = -(-W // TILE), -(-H // TILE)
-    ntiles = fc.B * ntx * nty
-    X0, X1, Y0, Y1 = Xs.min(0), Xs.max(0), Ys.min(0), Ys.max(0)
-    r = radius * (1 + 1e-6) + 1e-6
-    with np.errstate(invalid="ignore", over="ignore"):
-        j0 = np.ceil((X0 - r) * (H / 2) + (W - 1) / 2)
-        j1 = np.floor((X1 + r) * (H / 2) + (W - 1) / 2)
-        i0 = np.ceil((H * (1 - (Y1 + r)) - 1) / 2)
-        i1 = np.floor((H * (1 - (Y0 - r)) - 1) / 2)
-    j0, i0 = np.clip(np.nan_to_num(j0, nan=0, posinf=W, neginf=0), 0, W), np.clip(np.nan_to_num(i0, nan=0, posinf=H, neginf=0), 0, H)
-    j1, i1 = np.clip(np.nan_to_num(j1, nan=-1, posinf=W - 1, neginf=-1), -1, W - 1), np.clip(np.nan_to_num(i1, nan=-1, posinf=H - 1, neginf=-1), -1, H - 1)
-    ok = valid & (j1 >= j0) & (i1 >= i0)
-    idx = np.nonzero(ok)[0]
-    tx0, tx1 = (j0[idx] // TILE).astype(np.int64), (j1[idx] // TILE).astype(np.int64)
-    ty0, ty1 = (i0[idx] // TILE).astype(np.int64), (i1[idx] // TILE).astype(np.int64)
-    wt = tx1 - tx0 + 1
-    counts = wt * (ty1 - ty0 + 1)
-    total = int(counts.sum())
-    if total > MAX_TILE_ENTRIES and FALLBACK_RATIO * total >= ntx * nty * idx.size:
-        # one list per batch element: its valid faces (ascending); every tile of b points to it
-        b_of = idx // fc.F
-        first = np.searchsorted(b_of, np.arange(fc.B), "left").astype(np.uint32)
-        last = np.searchsorted(b_of, np.arange(fc.B), "right").astype(np.uint32)
-        per = ntx * nty
-        return (T.UInt32(np.repeat(first, per)), T.UInt32(np.repeat(last, per)),
-                T.UInt32(idx.astype(np.uint32) if idx.size else np.zeros(1, np.uint32)), int(idx.size) * per * TILE * TILE)
-    if total == 0:
-        z = np.zeros(ntiles, np.uint32)
-        return T.UInt32(z), T.UInt32(z), T.UInt32(np.zeros(1, np.uint32)), 0
-    rep = np.repeat(np.arange(idx.size), counts)
-    local = np.arange(total) - np.repeat(np.cumsum(counts) - counts, counts)
-    b = idx[rep] // fc.F
-    tile = b * (ntx * nty) + (ty0[rep] + local // wt[rep]) * ntx + (tx0[rep] + local % wt[rep])
-    # stable sort by tile keeps faces ascending within each tile (radix sort for 16-bit keys)
-    order = np.argsort(tile.astype(np.uint16) if ntiles <= 1 << 16 else tile, kind="stable")
-    faces = idx[rep][order].astype(np.uint32)
-    end = np.cumsum(np.bincount(tile, minlength=ntiles)).astype(np.uint32)
-    start = np.concatenate([np.zeros(1, np.uint32), end[:-1]])
-    return T.UInt32(start), T.UInt32(end), T.UInt32(faces), total
+def tile_size(B, H, W, F):
+    """The tile edge in pixels: the smallest of TILES whose bit masks fit MASK_BYTES."""
+    nw = -(-F // 32)
+    for t in TILES:
+        if B * (-(-H // t)) * (-(-W // t)) * nw * 4 <= MASK_BYTES:
+            return t
+    return TILES[-1]
+
+
+class Bins:
+    """Per tile (b, ty, tx) a bit mask over the faces of batch element b (``nw`` 32-bit words):
+    bit f of the mask is set when face f's screen box grown by the culling radius meets the tile and
+    f's signed distance at the tile centre is at least −(radius + the tile's half diagonal), a
+    conservative test (the distance is 1-Lipschitz in the pixel position). Built on the device (a symbolic loop per face over its tiles, atomic OR), so its size depends
+    only on (B, H, W, F): no data-dependent host work, nothing read back. Iterating a mask visits
+    the faces in ascending order (as the former host lists did), so sums are deterministic."""
+
+    def __init__(self, fc, H, W, cull_r, T):
+        K, F, B = fc.K, fc.F, fc.B
+        self.tile = TILE if TILE else tile_size(B, H, W, F)
+        t = self.tile
+        self.ntx, self.nty = -(-W // t), -(-H // t)
+        self.nw = nw = -(-F // 32)
+        self.F = F
+        Float, Int32, UInt32 = T.Float, T.Int32, T.UInt32
+        m = B * F
+        X0 = X1 = fc.Xd[0]
+        Y0 = Y1 = fc.Yd[0]
+        for k in range(1, K):
+            X0, X1 = dr.minimum(X0, fc.Xd[k]), dr.maximum(X1, fc.Xd[k])
+            Y0, Y1 = dr.minimum(Y0, fc.Yd[k]), dr.maximum(Y1, fc.Yd[k])
+        r = cull_r + 2.0 * BIN_MARGIN / H  # cull_r: the same (opaque) radius the pair loop culls with
+        # pixel index ranges [j0, j1] x [i0, i1] of the grown box (pixel centre j at ((2j + 1 - W)/H))
+        half, cx = 0.5 * H, 0.5 * (W - 1)
+        j0 = dr.ceil((X0 - r) * half + cx)
+        j1 = dr.floor((X1 + r) * half + cx)
+        i0 = dr.ceil((H * (1.0 - (Y1 + r)) - 1.0) * 0.5)
+        i1 = dr.floor((H * (1.0 - (Y0 - r)) - 1.0) * 0.5)
+        j0, i0 = dr.clip(j0, 0.0, float(W)), dr.clip(i0, 0.0, float(H))
+        j1, i1 = dr.clip(j1, -1.0, float(W - 1)), dr.clip(i1, -1.0, float(H - 1))
+        ok = fc.valid & (j1 >= j0) & (i1 >= i0)  # (NaN boxes compare False)
+        tx0 = Int32(dr.select(ok, j0, 0.0)) // t
+        tx1 = Int32(dr.select(ok, j1, 0.0)) // t
+        ty0 = Int32(dr.select(ok, i0, 0.0)) // t
+        ty1 = Int32(dr.select(ok, i1, 0.0)) // t
+        wt = tx1 - tx0 + 1
+        count = UInt32(dr.select(ok, wt * (ty1 - ty0 + 1), 0))
+        fl = dr.arange(UInt32, m)
+        b, f = fl // F, fl % F
+        bit = UInt32(1) << (f % 32)
+        word = f // 32
+        base = b * (self.ntx * self.nty)
+        wtu, tx0u, ty0u = UInt32(wt), UInt32(tx0), UInt32(ty0)
+        mask = dr.zeros(UInt32, B * self.ntx * self.nty * nw)
+
+        # a tile of the box is kept when the face's signed distance at the tile centre is within
+        # the radius plus the tile's half diagonal (the signed distance is 1-Lipschitz): about a
+        # third fewer pairs than whole boxes for the benchmark scene
+        reach = -(r + t * math.sqrt(2.0) / H)
+        fidx = fl
+
+        def body(k):
+            ty, tx = ty0u + k // wtu, tx0u + k % wtu
+            cx_ = (2.0 * Float(tx * t) + (t - W)) / H  # centre of the tile's pixel centres
+            cy_ = 1.0 - (2.0 * Float(ty * t) + t) / H
+            d, _, _ = distance_parts(fc, T, fidx, cx_, cy_, False)
+            tile = base + ty * self.ntx + tx
+            dr.scatter_reduce(dr.ReduceOp.Or, mask, bit, tile * nw + word, d >= reach, mode=dr.ReduceMode.Direct)
+            return (k + 1,)
+
+        with dr.suspend_grad():
+            dr.while_loop((dr.zeros(UInt32, m),), lambda k: k < count, body, labels=("k",))
+        self.mask = mask
+
+
+class Pixels:
+    """Lanes of the pixel loops in tile-major order (b, ty, tx, y, x), so that a SIMD packet stays
+    in one tile (coherent face lists); ``image_index`` maps the lanes to row-major pixels (lanes of
+    partial border tiles outside the image are computed and dropped)."""
+
+    def __init__(self, T, B, H, W, bins):
+        t, ntx, nty = bins.tile, bins.ntx, bins.nty
+        n = B * nty * ntx * t * t
+        lane = dr.arange(T.UInt32, n)
+        tile = lane // (t * t)
+        loc = lane % (t * t)
+        b = tile // (ntx * nty)
+        tyx = tile % (ntx * nty)
+        i = (tyx // ntx) * t + loc // t
+        j = (tyx % ntx) * t + loc % t
+        self.px = (2.0 * T.Float(j) + (1.0 - W)) / H
+        self.py = 1.0 - (2.0 * T.Float(i) + 1.0) / H
+        self.word0 = tile * bins.nw  # the tile's first mask word
+        self.face0 = b * bins.F      # faces of batch element b
+        self.n = n
+        self.bins, self.T = bins, T
+        # row-major image pixel (b, i, j) -> its lane
+        q = dr.arange(T.UInt32, B * H * W)
+        jj, ii, bb = q % W, (q // W) % H, q // (H * W)
+        self.image_index = (((bb * nty + ii // t) * ntx + jj // t) * t + ii % t) * t + jj % t
+
+    def start(self):
+        """Initial face-iterator state (w, bits): positioned on the tile's first face, if any."""
+        w = dr.zeros(self.T.UInt32, self.n)
+        bits = dr.gather(self.T.UInt32, self.bins.mask, self.word0)
+        return self.advance(w, bits)
+
+    def advance(self, w, bits):
+        """Skip empty mask words: afterwards bits != 0, or the tile's list is exhausted (bits == 0)."""
+        nw, mask, word0 = self.bins.nw, self.bins.mask, self.word0
+        if nw == 1:
+            return w, bits
+
+        def body(w, bits):
+            w = w + 1
+            return w, dr.gather(self.T.UInt32, mask, word0 + w)
+
+        return dr.while_loop((w, bits), lambda w, bits: (bits == 0) & (w + 1 < nw), body, labels=("w", "bits"))
+
+    def next_face(self, w, bits):
+        """(face index, w, bits) of the current face, the iterator moved on by one face."""
+        f = self.face0 + w * 32 + dr.tzcnt(bits)
+        w, bits = self.advance(w, bits & (bits - 1))
+        return f, w, bits
+
+    def to_image(self, a):
+        return dr.gather(type(a), a, self.image_index)
 
 
 # ---------------------------------------------------------------------------------------------
 # per-pair evaluation (inside the loops)
 # ---------------------------------------------------------------------------------------------
 def signed_distance(fc, T, f, px, py):
+    d, inside, parts = distance_parts(fc, T, f, px, py, fc.ad)
+    if parts is None:
+        return d, inside
+    i0, i1, tt, ux, uy, act = parts
+    Float, mode = T.Float, GRAD_MODE  # mode: how the reverse-mode scatter-adds of these reads are compiled
+    Xa, Ya = dr.gather(Float, fc.Xall, i0, act, mode=mode), dr.gather(Float, fc.Yall, i0, act, mode=mode)
+    Xb, Yb = dr.gather(Float, fc.Xall, i1, act, mode=mode), dr.gather(Float, fc.Yall, i1, act, mode=mode)
+    lin = ((1.0 - tt) * (ux * (Xa - dr.detach(Xa)) + uy * (Ya - dr.detach(Ya)))
+           + tt * (ux * (Xb - dr.detach(Xb)) + uy * (Yb - dr.detach(Yb))))
+    return d + lin, inside
+
+
+def distance_parts(fc, T, f, px, py, track):
     """Signed distance (inside > 0) of pixel centres (px, py) to polygon ``f``; and ``inside``.
 
     Evaluated on detached corners. When the corners carry gradients, the result is linearised
@@ -307,7 +418,6 @@ def signed_distance(fc, T, f, px, py):
     Xs = [dr.gather(Float, x, f) for x in fc.Xd]
     Ys = [dr.gather(Float, y, f) for y in fc.Yd]
     orient = dr.gather(Float, fc.orient, f)
-    track = fc.ad
     d2 = emin = None
     for k in range(K):
         Px, Py = Xs[k], Ys[k]
@@ -342,7 +452,7 @@ def signed_distance(fc, T, f, px, py):
     r = dr.sqrt(dr.select(inside, 1.0, dr.maximum(d2, T.tiny)))
     d = dr.select(inside, emin, -r)
     if not track:
-        return d, inside
+        return d, inside, None
     kk = dr.select(inside, ke, kd)
     tt = dr.select(inside, te, td)
     ux = dr.select(inside, -nxb, qxb / r)
@@ -351,19 +461,13 @@ def signed_distance(fc, T, f, px, py):
     i1 = f * K + dr.select(kk + 1 == K, 0, kk + 1)
     # pairs beyond the culling radius have coverage < eps (zero gradient): masked reads, so the
     # reverse pass issues no scatter-add for them (value unchanged: the linear term is 0 anyway)
-    act = (d >= fc.cull_lo) if fc.cull_lo is not None else True
-    mode = GRAD_MODE  # how the reverse-mode scatter-adds of these reads are compiled
-    Xa, Ya = dr.gather(Float, fc.Xall, i0, act, mode=mode), dr.gather(Float, fc.Yall, i0, act, mode=mode)
-    Xb, Yb = dr.gather(Float, fc.Xall, i1, act, mode=mode), dr.gather(Float, fc.Yall, i1, act, mode=mode)
-    lin = ((1.0 - tt) * (ux * (Xa - dr.detach(Xa)) + uy * (Ya - dr.detach(Ya)))
-           + tt * (ux * (Xb - dr.detach(Xb)) + uy * (Yb - dr.detach(Yb))))
-    return d + lin, inside
+    act = (d >= fc.cull_lo) if fc.cull_lo is not None else T.Bool(True)
+    return d, inside, (i0, i1, tt, ux, uy, act)
 
 
 def generator_terms(dist, tcn, ops, x, eps):
     """(g, sat, p): generator value (0 where saturated or culled), saturation flag, coverage."""
-    p = dist.cdf(ops, x)
-    l = dist.log_sf(ops, x)
+    p, l = dist.cdf_and_log_sf(ops, x)
     sat = ~(l > -math.inf)
     g = tcn.generator(ops, dr.select(sat, 0.5, p), dr.select(sat, math.log(0.5), l))
     sat = sat | ~(g < math.inf)  # overflow: saturated too (the generator's gradient there is finite)
@@ -398,56 +502,165 @@ def shade_pair(fc, T, f, px, py):
 # ---------------------------------------------------------------------------------------------
 # the loops
 # ---------------------------------------------------------------------------------------------
-class Pixels:
-    """Lanes (b, i, j) of the image: pixel centres and their tile's face range."""
-
-    def __init__(self, T, B, H, W, start, end):
-        n = B * H * W
-        lane = dr.arange(T.UInt32, n)
-        j = lane % W
-        i = (lane // W) % H
-        b = lane // (H * W)
-        self.px = (2.0 * T.Float(j) + (1.0 - W)) / H
-        self.py = 1.0 - (2.0 * T.Float(i) + 1.0) / H
-        ntx, nty = -(-W // TILE), -(-H // TILE)
-        tile = b * (ntx * nty) + (i // TILE) * ntx + j // TILE
-        self.start = dr.gather(T.UInt32, start, tile)
-        self.end = dr.gather(T.UInt32, end, tile)
-        self.n = n
+def _local_derivative(fn, x):
+    """(fn(x), d fn/dx) per lane by forward-mode AD on a fresh leaf (valid inside symbolic loops):
+    the spec formulas are differentiated exactly as Dr.Jit's reverse mode would."""
+    with dr.isolate_grad():
+        xg = type(x)(dr.detach(x))
+        dr.enable_grad(xg)
+        y = fn(xg)
+        if not dr.grad_enabled(y):  # piecewise constant (e.g. heaviside)
+            return dr.detach(y), dr.zeros(type(x), dr.width(x))
+        dr.forward(xg, dr.ADFlag.ClearEdges)
+        return dr.detach(y), dr.grad(y)
 
 
-def alpha_archimedean(s, fc, T, ops, pix, tiles, tau):
-    dist, tcn, eps = s.distribution, s.tconorm, s.eps
-    px, py, end = pix.px, pix.py, pix.end
+class _Ctx:
+    def __init__(self, s, fc, T, ops, pix, tau_grad, resid):
+        self.parts, self.tau_grad, self.nsat, self.resid = (s, fc, T, ops, pix), tau_grad, None, resid
 
-    def body(k, S, nsat):
-        f = dr.gather(T.UInt32, tiles, k)
-        d, _ = signed_distance(fc, T, f, px, py)
-        g, sat, _ = generator_terms(dist, tcn, ops, dist.argument(ops, d, tau), eps)
-        return k + 1, S + g, nsat + dr.select(sat, 1, 0)
 
-    _, S, nsat = dr.while_loop((T.UInt32(pix.start), dr.zeros(T.Float, pix.n), dr.zeros(T.UInt32, pix.n)),
-                               lambda k, S, nsat: k < end, body, max_iterations=-1, labels=("k", "S", "nsat"))
+class AlphaSum(dr.CustomOp):
+    """S = Σ_faces g(F(x(d, τ))) per pixel (archimedean T-conorms), with a hand-written backward.
+
+    Forward: the per-pixel sum loop without any AD bookkeeping. Backward: a second explicit loop
+    over the same faces that recomputes each pair, takes the local derivative of the spec formulas
+    (forward-mode AD on the scalar argument x, see _local_derivative), and scatter-adds
+    δ_S · ∂g/∂x · ∂x/∂d · ∂d/∂(corner) into the two corners of the nearest edge (the linearised
+    distance of signed_distance) and δ_S · ∂g/∂x · ∂x/∂τ into a per-pixel τ accumulator (summed once
+    after the loop: no atomics on one address). Same derivatives as Dr.Jit's generic reverse-mode
+    sum loop (tests/test_drjit_freeze.py), about half its work per pair."""
+
+    def eval(self, Xall, Yall, tau, ctx):
+        self.ctx, self.tau = ctx, tau
+        s, fc, T, ops, pix = ctx.parts
+        if ctx.resid is not None:  # S and nsat of an earlier forward pass of the same inputs
+            S, ctx.nsat = ctx.resid
+            return T.Float(S)
+        dist, tcn, eps = s.distribution, s.tconorm, s.eps
+        px, py = pix.px, pix.py
+
+        def body(w, bits, S, nsat):
+            f, w, bits = pix.next_face(w, bits)
+            d, _, _ = distance_parts(fc, T, f, px, py, False)
+            g, sat, _ = generator_terms(dist, tcn, ops, dist.argument(ops, d, tau), eps)
+            return w, bits, S + g, nsat + dr.select(sat, 1, 0)
+
+        _, _, S, nsat = dr.while_loop((*pix.start(), dr.zeros(T.Float, pix.n), dr.zeros(T.UInt32, pix.n)),
+                                      lambda w, bits, S, nsat: bits != 0, body, labels=("w", "bits", "S", "nsat"))
+        # stored when the pass runs (not re-traced into the consumers of S, e.g. the backward pass)
+        dr.schedule(S, nsat)
+        ctx.nsat = nsat
+        return S
+
+    def forward(self):
+        raise NotImplementedError("forward-mode AD of the Dr.Jit alpha sum is not implemented")
+
+    def backward(self):
+        s, fc, T, ops, pix = self.ctx.parts
+        dist, tcn, eps = s.distribution, s.tconorm, s.eps
+        Float = T.Float
+        tau = dr.detach(self.tau)
+        want_xy = dr.grad_enabled(fc.Xall) if fc.ad else False
+        want_tau = self.ctx.tau_grad
+        delta = Float(self.grad_out())
+        if dr.width(delta) != pix.n:
+            delta = dr.zeros(Float, pix.n) + delta
+        px, py = pix.px, pix.py
+        gX = dr.zeros(Float, dr.width(fc.Xall)) if want_xy else None
+        gY = dr.zeros(Float, dr.width(fc.Yall)) if want_xy else None
+        mode = BWD_MODE
+
+        def body(w, bits, gt):
+            f, w, bits = pix.next_face(w, bits)
+            d, _, (i0, i1, tt, ux, uy, act) = distance_parts(fc, T, f, px, py, True)
+            x = dist.argument(ops, d, tau)
+            _, gx = _local_derivative(lambda xx: generator_terms(dist, tcn, ops, xx, eps)[0], x)
+            # a zero incoming gradient contributes nothing, even where ∂g/∂x overflowed (0·inf):
+            # as in Dr.Jit's reverse mode (e.g. a pixel whose sum S saturated: ∂A/∂S = 0)
+            coef = dr.select(delta != 0.0, delta * gx, 0.0)
+            if want_xy:
+                _, xd = _local_derivative(lambda dd: dist.argument(ops, dd, tau), d)
+                cd = coef * xd
+                a = act & (cd != 0.0)
+                c0, c1 = cd * (1.0 - tt), cd * tt
+                dr.scatter_reduce(dr.ReduceOp.Add, gX, c0 * ux, i0, a, mode=mode)
+                dr.scatter_reduce(dr.ReduceOp.Add, gY, c0 * uy, i0, a, mode=mode)
+                dr.scatter_reduce(dr.ReduceOp.Add, gX, c1 * ux, i1, a, mode=mode)
+                dr.scatter_reduce(dr.ReduceOp.Add, gY, c1 * uy, i1, a, mode=mode)
+            if want_tau:
+                _, xt = _local_derivative(lambda tt_: dist.argument(ops, d, tt_), Float(tau))
+                gt = gt + coef * xt
+            return w, bits, gt
+
+        _, _, gt = dr.while_loop((*pix.start(), dr.zeros(Float, pix.n)), lambda w, bits, gt: bits != 0, body,
+                                 labels=("w", "bits", "gt"))
+        if want_xy:
+            self.set_grad_in("Xall", gX)
+            self.set_grad_in("Yall", gY)
+        if want_tau:
+            self.set_grad_in("tau", dr.sum(gt))
+
+    def name(self):
+        return "gendr alpha sum"
+
+
+def alpha_archimedean(s, fc, T, ops, pix, tau, resid=None, keep_sums=False):
+    """Alpha of an archimedean T-conorm; sets fc.S, fc.nsat (the loop's sums). ``resid``: (S, nsat)
+    of an earlier forward pass of the same inputs (frozen backward replays reuse them);
+    ``keep_sums``: store S, nsat when the loop runs (the frozen forward returns them)."""
+    tcn = s.tconorm
+    if CUSTOM_BACKWARD and (fc.ad or dr.grad_enabled(tau)) and dr.width(tau) == 1:
+        Xall = fc.Xall if fc.ad else dr.zeros(T.Float, 1)
+        Yall = fc.Yall if fc.ad else dr.zeros(T.Float, 1)
+        ctx = _Ctx(s, fc, T, ops, pix, dr.grad_enabled(tau), resid)  # (not a PyTree: passed through as is)
+        S = dr.custom(AlphaSum, Xall, Yall, tau, ctx)
+        nsat = ctx.nsat
+    elif resid is not None and not (fc.ad or dr.grad_enabled(tau)):
+        S, nsat = resid
+    else:
+        S, nsat = alpha_sum_generic(s, fc, T, ops, pix, tau)
+        if keep_sums:
+            dr.schedule(S, nsat)
+    fc.S, fc.nsat = S, nsat
     pos = S > 0.0
     A = dr.select(pos, tcn.from_generator_sum(ops, dr.select(pos, S, 1.0)), 0.0)
     return dr.select(nsat > 0, 1.0, A)
 
 
-def alpha_max(s, fc, T, ops, pix, tiles, tau):
+def alpha_sum_generic(s, fc, T, ops, pix, tau):
+    """S and the saturation count by Dr.Jit's generic reverse-mode sum loop (the reference the
+    hand-written backward of AlphaSum is tested against)."""
     dist, tcn, eps = s.distribution, s.tconorm, s.eps
-    px, py, end = pix.px, pix.py, pix.end
+    px, py = pix.px, pix.py
+
+    def body(w, bits, S, nsat):
+        f, w, bits = pix.next_face(w, bits)
+        d, _ = signed_distance(fc, T, f, px, py)
+        g, sat, _ = generator_terms(dist, tcn, ops, dist.argument(ops, d, tau), eps)
+        return w, bits, S + g, nsat + dr.select(sat, 1, 0)
+
+    _, _, S, nsat = dr.while_loop((*pix.start(), dr.zeros(T.Float, pix.n), dr.zeros(T.UInt32, pix.n)),
+                                  lambda w, bits, S, nsat: bits != 0, body, max_iterations=-1,
+                                  labels=("w", "bits", "S", "nsat"))
+    return S, nsat
+
+
+def alpha_max(s, fc, T, ops, pix, tau):
+    dist, tcn, eps = s.distribution, s.tconorm, s.eps
+    px, py = pix.px, pix.py
     tau_d = dr.detach(tau)
 
-    def body(k, best, arg):
-        f = dr.gather(T.UInt32, tiles, k)
+    def body(w, bits, best, arg):
+        f, w, bits = pix.next_face(w, bits)
         d, _ = signed_distance(fc, T, f, px, py)
         p = coverage(dist, ops, d, tau_d, eps)
         better = p > best
-        return k + 1, dr.select(better, p, best), dr.select(better, f, arg)
+        return w, bits, dr.select(better, p, best), dr.select(better, f, arg)
 
     with dr.suspend_grad():
-        _, best, arg = dr.while_loop((T.UInt32(pix.start), dr.zeros(T.Float, pix.n), dr.full(T.UInt32, _NONE, pix.n)),
-                                     lambda k, b, a: k < end, body, labels=("k", "best", "arg"))
+        _, _, best, arg = dr.while_loop((*pix.start(), dr.zeros(T.Float, pix.n), dr.full(T.UInt32, _NONE, pix.n)),
+                                        lambda w, bits, b, a: bits != 0, body, labels=("w", "bits", "best", "arg"))
     if tcn.kind != MAX:  # the hard logical "or"
         return dr.select(best >= 0.5, T.Float(1.0), T.Float(0.0))  # typed: plain floats give float32
     has = arg != _NONE
@@ -456,30 +669,30 @@ def alpha_max(s, fc, T, ops, pix, tiles, tau):
     return dr.select(has, coverage(dist, ops, d, tau, eps), 0.0)
 
 
-def rgb_hard(s, fc, T, ops, pix, tiles):
-    px, py, end = pix.px, pix.py, pix.end
+def rgb_hard(s, fc, T, ops, pix):
+    px, py = pix.px, pix.py
     cull = s.cull_backfaces
 
-    def body(k, best, arg):
-        f = dr.gather(T.UInt32, tiles, k)
+    def body(w, bits, best, arg):
+        f, w, bits = pix.next_face(w, bits)
         _, inside = signed_distance(fc, T, f, px, py)
         if cull:
             inside = inside & dr.gather(T.Bool, fc.front, f)
         depth, _ = shade_pair(fc, T, f, px, py)
         better = inside & (depth < best)
-        return k + 1, dr.select(better, depth, best), dr.select(better, f, arg)
+        return w, bits, dr.select(better, depth, best), dr.select(better, f, arg)
 
     with dr.suspend_grad():
-        _, _, arg = dr.while_loop((T.UInt32(pix.start), dr.full(T.Float, math.inf, pix.n), dr.full(T.UInt32, _NONE, pix.n)),
-                                  lambda k, b, a: k < end, body, labels=("k", "best", "arg"))
+        _, _, _, arg = dr.while_loop((*pix.start(), dr.full(T.Float, math.inf, pix.n), dr.full(T.UInt32, _NONE, pix.n)),
+                                     lambda w, bits, b, a: bits != 0, body, labels=("w", "bits", "best", "arg"))
     has = arg != _NONE
     _, col = shade_pair(fc, T, dr.select(has, arg, 0), px, py)
     return [dr.select(has, col[c], s.background[c]) for c in range(3)]
 
 
-def rgb_softmax(s, fc, T, ops, pix, tiles, tau):
+def rgb_softmax(s, fc, T, ops, pix, tau):
     dist, eps = s.distribution, s.eps
-    px, py, end = pix.px, pix.py, pix.end
+    px, py = pix.px, pix.py
     gamma, beps, cull = s.gamma, s.background_eps, s.cull_backfaces
     zscale = 1.0 / (fc.far - fc.near)
     tau_d = dr.detach(tau)
@@ -493,26 +706,26 @@ def rgb_softmax(s, fc, T, ops, pix, tiles, tau):
         depth, col = shade_pair(fc, T, f, px, py)
         return live, p, (fc.far - depth) * zscale, col
 
-    def body_max(k, m):
-        f = dr.gather(T.UInt32, tiles, k)
+    def body_max(w, bits, m):
+        f, w, bits = pix.next_face(w, bits)
         live, _, zt, _ = live_zt(f, tau_d)
-        return k + 1, dr.select(live, dr.maximum(m, zt), m)
+        return w, bits, dr.select(live, dr.maximum(m, zt), m)
 
     with dr.suspend_grad():
-        _, m = dr.while_loop((T.UInt32(pix.start), dr.full(T.Float, beps, pix.n)), lambda k, m: k < end, body_max,
-                             labels=("k", "m"))
+        _, _, m = dr.while_loop((*pix.start(), dr.full(T.Float, beps, pix.n)), lambda w, bits, m: bits != 0, body_max,
+                                labels=("w", "bits", "m"))
     m = dr.detach(m)
 
-    def body_sum(k, r, g, b, den):
-        f = dr.gather(T.UInt32, tiles, k)
+    def body_sum(wi, bits, r, g, b, den):
+        f, wi, bits = pix.next_face(wi, bits)
         live, p, zt, col = live_zt(f, tau)
         w = dr.select(live, p * dr.exp(dr.select(live, zt - m, 0.0) / gamma), 0.0)
-        return k + 1, r + w * col[0], g + w * col[1], b + w * col[2], den + w
+        return wi, bits, r + w * col[0], g + w * col[1], b + w * col[2], den + w
 
     z = dr.zeros(T.Float, pix.n)
-    _, r, g, b, den = dr.while_loop((T.UInt32(pix.start), z, T.Float(z), T.Float(z), T.Float(z)),
-                                    lambda k, *a: k < end, body_sum, max_iterations=-1,
-                                    labels=("k", "r", "g", "b", "den"))
+    _, _, r, g, b, den = dr.while_loop((*pix.start(), z, T.Float(z), T.Float(z), T.Float(z)),
+                                       lambda wi, bits, *a: bits != 0, body_sum, max_iterations=-1,
+                                       labels=("w", "bits", "r", "g", "b", "den"))
     wb = dr.exp((beps - m) / gamma)
     den = den + wb
     return [(num + wb * s.background[c]) / den for c, num in enumerate((r, g, b))]
@@ -520,6 +733,19 @@ def rgb_softmax(s, fc, T, ops, pix, tiles, tau):
 
 def render(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, colors, per_face, tau):
     """The image as a flat array [B·H·W·4] (RGBA interleaved) and B."""
+    return render_parts(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, colors, per_face, tau)[:2]
+
+
+def culling_radius(settings, tau_value):
+    """The binning / culling radius (spec culling distance plus a relative margin), a Python float."""
+    return settings.distribution.culling_distance(settings.eps, tau_value) * (1 + 1e-6) + 1e-6
+
+
+def render_parts(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, colors, per_face, tau, *, cull_r=None,
+                 clip=None, faces_u=None, resid=None, keep_sums=False):
+    """(image [B·H·W·4], B, fc): as :func:`render`; ``cull_r`` (an opaque Dr.Jit scalar, or None
+    to derive it from the settings' τ), ``clip`` and ``faces_u`` let a frozen function pass
+    everything data-dependent in as Dr.Jit inputs (see backend.FrozenRenderer)."""
     H, W = settings.image_size
     if faces_np.shape[0] == 0:  # no faces: alpha 0, RGB the background (0 without a blend)
         B = max(Bv, Bc)
@@ -528,29 +754,30 @@ def render(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, colors, per_
         if settings.blend is not None:
             for c in range(3):
                 out = dr.select(ch == c, settings.background[c], out)
-        return out, B
-    fc = prepare_faces(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, colors, per_face)
-    radius = settings.distribution.culling_distance(settings.eps, settings.tau_value)
-    cull_r = radius * (1 + 1e-6) + 1e-6  # the margin bin_faces uses too
-    # opaque: the radius follows τ, and a literal would recompile the loop kernels
-    fc.cull_lo = dr.opaque(T.Float, -cull_r, 1) if math.isfinite(cull_r) else None
-    start, end, tiles, _ = bin_faces(fc, H, W, radius, T)
-    pix = Pixels(T, fc.B, H, W, start, end)
+        return out, B, None
+    fc = prepare_faces(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, colors, per_face, clip, faces_u)
+    if cull_r is None:
+        r = culling_radius(settings, settings.tau_value)
+        # opaque: the radius follows τ, and a literal would recompile the loop kernels
+        cull_r = dr.opaque(T.Float, r, 1) if math.isfinite(r) else None
+    fc.cull_lo = -cull_r if cull_r is not None else None
+    bins = Bins(fc, H, W, cull_r if cull_r is not None else math.inf, T)
+    pix = Pixels(T, fc.B, H, W, bins)
+    fc.S = fc.nsat = None
     if settings.tconorm.kind == ARCHIMEDEAN:
-        A = alpha_archimedean(settings, fc, T, ops, pix, tiles, tau)
+        A = alpha_archimedean(settings, fc, T, ops, pix, tau, resid, keep_sums)
     else:
-        A = alpha_max(settings, fc, T, ops, pix, tiles, tau)
+        A = alpha_max(settings, fc, T, ops, pix, tau)
     if settings.blend is None:
         rgb = None
     elif settings.blend == "hard":
-        rgb = rgb_hard(settings, fc, T, ops, pix, tiles)
+        rgb = rgb_hard(settings, fc, T, ops, pix)
     else:
-        rgb = rgb_softmax(settings, fc, T, ops, pix, tiles, tau)
-    n = pix.n
-    lane = dr.arange(T.UInt32, 4 * n)
-    p, ch = lane // 4, lane % 4
+        rgb = rgb_softmax(settings, fc, T, ops, pix, tau)
+    lane = dr.arange(T.UInt32, 4 * fc.B * H * W)
+    p, ch = dr.gather(T.UInt32, pix.image_index, lane // 4), lane % 4
     out = dr.select(ch == 3, dr.gather(T.Float, A, p), 0.0)
     if rgb is not None:
         for c in range(3):
             out = dr.select(ch == c, dr.gather(T.Float, rgb[c], p), out)
-    return out, fc.B
+    return out, fc.B, fc
