@@ -119,11 +119,15 @@ class DrJitBackend:
     """Renders with Dr.Jit: one fused per-pixel loop kernel per pass (see :mod:`gendr_drjit.raster`).
 
     device : "llvm" (CPU), "cuda", or None (CUDA when available, else LLVM).
+    freeze : replay renders of the same shapes with ``dr.freeze`` instead of re-tracing them
+        (see :mod:`gendr_drjit.frozen`; gradients work through a custom op).
     """
 
     name = "drjit"
 
-    def __init__(self, device=None):
+    def __init__(self, device=None, freeze=False):
+        if not isinstance(freeze, bool):
+            raise ParameterError(f"drjit backend parameter freeze={freeze!r} must be True or False")
         if device is None:
             device = "cuda" if dr.has_backend(dr.JitBackend.CUDA) else "llvm"
         if device not in DEVICES:
@@ -141,6 +145,10 @@ class DrJitBackend:
         self.module = module
         self._types = {}
         self._ops = {}
+        self.frozen = None
+        if freeze:
+            from .frozen import FrozenRenderer
+            self.frozen = FrozenRenderer()
 
     def types(self, double):
         if double not in self._types:
@@ -277,7 +285,10 @@ class DrJitBackend:
         t = wrapped.get("tau", tau)
         tau_arr = self._opaque(self._param(t, T)[0], T)
         H, W = settings.image_size
-        out, B = raster.render(settings, camera, ops, T, P, Bc, vflat, Bv, V, faces, col, per_face, tau_arr)
+        if self.frozen is not None and faces.shape[0] > 0:
+            out, B = self.frozen.render(settings, camera, T, ops, P, Bc, vflat, Bv, V, faces, col, per_face, tau_arr)
+        else:
+            out, B = raster.render(settings, camera, ops, T, P, Bc, vflat, Bv, V, faces, col, per_face, tau_arr)
         return T.Tensor(out, shape=(B, H, W, 4))
 
     def _flat(self, x, inp, T):
