@@ -10,7 +10,12 @@ in a fresh process with an empty Dr.Jit kernel cache: tracing + LLVM compilation
 statistics from Dr.Jit's kernel history (kernels launched, kernels compiled = cache misses, summed
 kernel execution time), and ``optimization_loop``: 100 forward+backward steps on changing vertices
 (a training loop; wall times and kernels compiled), then 5 renders with different τ
-(``kernels_compiled_tau_changes``: τ is opaque, so none may compile a kernel).
+(``kernels_compiled_tau_changes``: τ is opaque, so none may compile a kernel); ``time_split``: the
+median wall time of each mode split into kernel execution and host time (tracing, launches); and
+``frozen``: forward, forward+backward, time split and optimisation loop again with
+``freeze=True`` (renders replayed by ``dr.freeze``; the loop reports how many recordings, i.e.
+Python traces, its 100 steps and its 5 τ changes made: 0 after the first call). ``--no-freeze``
+skips that part.
 
 Cases (DESIGN/issue 2): icosphere subdivision 3 (1,280 faces) at 256×256, logistic + probabilistic,
 τ = 0.01, eps = 1e-4, silhouette only (blend=None, as PyTorch3D's soft silhouette), forward and
@@ -116,10 +121,10 @@ def machine():
             "numpy": np.__version__, "gendr": gendr.__version__, "git_commit": commit}
 
 
-def setup(backend, name, threads):
+def setup(backend, name, threads, freeze=False):
     """(forward, forward_backward, info) callables of one case."""
     if backend == "drjit":
-        return setup_drjit(name, threads)
+        return setup_drjit(name, threads, freeze=freeze)
     import torch  # the torch backend: inputs are torch tensors
     torch.set_num_threads(threads)
     cfg = CASES[name]
@@ -145,7 +150,7 @@ def setup(backend, name, threads):
     return {"forward": forward, "forward_backward": forward_backward}, info
 
 
-def setup_drjit(name, threads, tau=0.01):
+def setup_drjit(name, threads, tau=0.01, freeze=False):
     import drjit as dr
     from drjit.llvm.ad import TensorXf
     dr.set_thread_count(threads)
@@ -156,8 +161,13 @@ def setup_drjit(name, threads, tau=0.01):
     cam = gendr.PerspectiveCamera(eye=(0.0, 0.0, 3.0), fov_y=60.0)
 
     def renderer(t=tau):
-        return gendr.Renderer("logistic", "probabilistic", tau=t, image_size=cfg["size"], eps=1e-4, blend=None,
-                              backend="drjit", device="llvm")
+        rr = gendr.Renderer("logistic", "probabilistic", tau=t, image_size=cfg["size"], eps=1e-4, blend=None,
+                            backend="drjit", device="llvm", freeze=freeze)
+        if freeze and shared:  # one backend object: its frozen functions serve every τ
+            rr.backend = shared[0]
+        shared.append(rr.backend)
+        return rr
+    shared = []
     r = renderer()
 
     def forward():
@@ -178,7 +188,7 @@ def setup_drjit(name, threads, tau=0.01):
 
     info = {"case": name, "backend": "drjit", "device": "llvm", "dtype": "float32", "faces": int(faces.shape[0]),
             "image_size": cfg["size"], "instance": "logistic|probabilistic", "tau": tau, "eps": 1e-4, "blend": None,
-            "threads": threads, "versions": {"drjit": dr.__version__}}
+            "threads": threads, "freeze": freeze, "versions": {"drjit": dr.__version__}}
     return {"forward": forward, "forward_backward": forward_backward, "_renderer": renderer, "_verts": verts}, info
 
 
@@ -206,13 +216,33 @@ def optimization_loop(modes, steps=100):
             fb(r, v)
             times.append(time.perf_counter() - t0)
 
+    frozen = r.backend.frozen
+    rec0 = frozen.n_recordings if frozen is not None else None
     steps_stats = kernel_stats(loop)
+    rec1 = frozen.n_recordings if frozen is not None else None
     tau_stats = kernel_stats(lambda: [fb(modes["_renderer"](t)) for t in (0.011, 0.012, 0.013, 0.014, 0.015)])
-    return summary(times) | {"steps": steps, "total_s": sum(times), "kernels_compiled": steps_stats["kernels_compiled"],
-                             "kernels_compiled_tau_changes": tau_stats["kernels_compiled"]}
+    out = summary(times) | {"steps": steps, "total_s": sum(times), "kernels_compiled": steps_stats["kernels_compiled"],
+                            "kernels_compiled_tau_changes": tau_stats["kernels_compiled"]}
+    if frozen is not None:  # recordings (Python traces) made during the 100 steps, and the 5 τ changes
+        out |= {"frozen_recordings_during_steps": rec1 - rec0,
+                "frozen_recordings_tau_changes": frozen.n_recordings - rec1}
+    return out
 
 
-def run_case(backend, name, repeats, threads):
+def time_split(fn, repeats):
+    """Median wall time of ``fn`` split into kernel execution (Dr.Jit's kernel history) and the
+    rest (Python tracing, host work, launch overhead)."""
+    walls, kern = [], []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        st = kernel_stats(fn)
+        walls.append(1000.0 * (time.perf_counter() - t))
+        kern.append(st["kernel_exec_ms"])
+    return {"wall_ms": statistics.median(walls), "kernel_exec_ms": statistics.median(kern),
+            "host_ms": statistics.median([w - k for w, k in zip(walls, kern)])}
+
+
+def run_case(backend, name, repeats, threads, freeze=True):
     modes, out = setup(backend, name, threads)
     if backend == "drjit":
         img = modes["forward"]()
@@ -225,8 +255,18 @@ def run_case(backend, name, repeats, threads):
         if backend == "drjit":
             out[label]["first_call_cold_ms"] = probe(backend, name, label, threads, cold=True)["first_call_ms"]
             out[label] |= kernel_stats(fn)
+    if backend == "drjit":
+        out["time_split"] = {label: time_split(modes[label], repeats) for label in ("forward", "forward_backward")}
     if backend == "drjit" and name == "default":
         out["optimization_loop"] = optimization_loop(modes)
+    if backend == "drjit" and freeze:  # the same with freeze=True (dr.freeze replays, gendr_drjit.frozen)
+        fmodes, _ = setup_drjit(name, threads, freeze=True)
+        fr = out["frozen"] = {}
+        for label in ("forward", "forward_backward"):
+            fr[label] = summary(measure(fmodes[label], repeats)) | kernel_stats(fmodes[label])
+        fr["time_split"] = {label: time_split(fmodes[label], repeats) for label in ("forward", "forward_backward")}
+        if name == "default":
+            fr["optimization_loop"] = optimization_loop(fmodes)
     return out
 
 
@@ -237,6 +277,7 @@ def main(argv=None):
     ap.add_argument("--repeats", type=int, default=10)
     ap.add_argument("--threads", type=int, default=os.cpu_count())
     ap.add_argument("--out", type=Path, help="write the JSON here (also printed)")
+    ap.add_argument("--no-freeze", action="store_true", help="drjit: skip the freeze=True measurements")
     ap.add_argument("--memory-probe", nargs=2, metavar=("CASE", "MODE"), help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.memory_probe:
@@ -248,7 +289,8 @@ def main(argv=None):
         dt = time.perf_counter() - t0
         print(json.dumps({"peak_extra_mb": (_status_kb("VmHWM") - rss0) / 1024.0, "first_call_ms": 1000.0 * dt}))
         return 0
-    result = {"machine": machine(), "results": [run_case(a.backend, c, a.repeats, a.threads) for c in (a.case or ["default"])]}
+    result = {"machine": machine(), "results": [run_case(a.backend, c, a.repeats, a.threads, not a.no_freeze)
+                                                for c in (a.case or ["default"])]}
     text = json.dumps(result, indent=2)
     print(text)
     if a.out:
