@@ -113,30 +113,36 @@ def _grad_task(task):
     return gradcheck.check_instance(_ADAPTER_CACHE[b], inst, keep_images=keep)
 
 
+def _set_threads(n):
+    """Set torch's and Dr.Jit's thread counts (where installed); returns [(setter, previous value)]."""
+    saved = []
+    try:
+        import torch
+        saved.append((torch.set_num_threads, torch.get_num_threads()))
+        torch.set_num_threads(n)
+    except ImportError:
+        pass
+    try:
+        import drjit
+        saved.append((drjit.set_thread_count, drjit.thread_count()))
+        drjit.set_thread_count(n)
+    except ImportError:
+        pass
+    return saved
+
+
 def _single_threaded():
-    """Worker-process initializer: one compute thread per process (torch, OpenMP, Dr.Jit)."""
+    """Worker-process initializer: one compute thread per process (OpenMP, torch, Dr.Jit)."""
     os.environ["OMP_NUM_THREADS"] = "1"
-    _one_thread().__enter__()
+    _set_threads(1)
 
 
 @contextlib.contextmanager
 def _one_thread():
     """torch and Dr.Jit on one thread, restored on exit. The checks render 8×12 to 96×128 images:
     there a thread pool only costs (quick validate on 2 cores with one busy: 50 s with the default
-    2 threads, 16.5 s with 1); use ``jobs`` for parallelism."""
-    saved = []
-    try:
-        import torch
-        saved.append((torch.set_num_threads, torch.get_num_threads()))
-        torch.set_num_threads(1)
-    except ImportError:
-        pass
-    try:
-        import drjit
-        saved.append((drjit.set_thread_count, drjit.thread_count()))
-        drjit.set_thread_count(1)
-    except ImportError:
-        pass
+    2 threads, 13.6 s with 1); use ``jobs`` for parallelism."""
+    saved = _set_threads(1)
     try:
         yield
     finally:
