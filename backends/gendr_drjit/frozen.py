@@ -90,12 +90,7 @@ class FrozenRenderer:
 
     def _backward(self, inp, cull, faces_u, resid, grad_out, need, key):
         st = self.static[key]
-        leaves = {}
-        for name, x in inp.items():
-            if x is None:
-                leaves[name] = None
-                continue
-            leaves[name] = _copy(x)
+        leaves = _copy(inp)  # fresh AD leaves (None entries stay None)
         for path in need:
             dr.enable_grad(_at(leaves, path))
         out, _, _ = _render(st, leaves, cull, faces_u, resid)
