@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import Callable
 
 from .ops import numpy_ops
@@ -42,6 +43,9 @@ class DistributionFamily:
     params: tuple[Param, ...] = ()
     log_sf: Callable | None = None
     log_cdf: Callable | None = None
+    #: log_sf and log_cdf keep their relative accuracy on the whole line, also where F (or 1 − F) is
+    #: tiny, so the renderer's log(1 − F) needs no log1p(−F) branch (tested against scipy/mpmath)
+    accurate_logs: bool = False
     differentiable: bool = True
     doc: str = ""
 
@@ -109,9 +113,11 @@ class Distribution:
     def cdf_and_log_sf(self, ops, x):
         """``(F(x), log(1 − F(x)))``, F evaluated once.
 
-        Where F < 1/2 the log is log1p(−F): the families' log-survival formulas are written for the
-        upper half and may round log(1 − F) to 0 for tiny F (Gaussian, Cauchy), which T-conorm
-        generators with small exponents, e.g. (−log(1 − p))^0.25, turn into large absolute errors.
+        Where F < 1/2 the log is log1p(−F) (unless the family's logs are ``accurate_logs``): the
+        families' log-survival formulas are written for the upper half and may round log(1 − F) to 0
+        for tiny F (Gaussian, Cauchy), which T-conorm generators with small exponents, e.g.
+        (−log(1 − p))^0.25, turn into large absolute errors. A backend that uses only the log (e.g.
+        for the probabilistic generator −log(1 − p)) then never evaluates F of an accurate family.
         """
         F = self.cdf(ops, x)
         return F, self._log_sf(ops, x, F)
@@ -125,6 +131,8 @@ class Distribution:
             upper = f.log_sf(ops, x, **kw)
         else:
             upper = ops.log1p(-f.cdf(ops, x, **kw))
+        if f.accurate_logs:
+            return upper
         lower = F < 0.5
         return ops.where(lower, ops.log1p(-ops.where(lower, F, 0.0)), upper)
 
@@ -149,9 +157,14 @@ class Distribution:
         return self.cdf_and_log_sf(ops, self.argument(ops, d, tau))
 
     def quantile(self, q: float) -> float:
-        """Smallest x with F(x) >= q (float64 bisection on the CDF; ``-inf`` if F(x) >= q for all x)."""
+        """Smallest x with F(x) >= q (float64 bisection on the CDF; ``-inf`` if F(x) >= q for all x).
+
+        Cached: renderers ask for the same levels (eps) at every render."""
         if not 0.0 <= q <= 1.0:
             raise ParameterError(f"quantile level q={q!r} must lie in [0, 1]")
+        return _cached_quantile(self, float(q))
+
+    def _quantile(self, q: float) -> float:
         lo, hi = self.support()
         if q <= 0.0:
             return lo
@@ -181,6 +194,13 @@ class Distribution:
                 a = m
         return b
 
+    def argument_threshold(self, eps: float) -> float:
+        """F⁻¹(eps): the argument x below which the coverage F(x) is < ``eps`` (−inf for eps = 0).
+
+        Renderers drop the pairs with x < F⁻¹(eps) (coverage < eps) by this test on x, so that the
+        coverage itself need not be evaluated where only its log enters the generator."""
+        return self.quantile(eps) if eps > 0 else -math.inf
+
     def culling_distance(self, eps: float, tau: float) -> float:
         """Distance outside a face beyond which its coverage is < ``eps`` (``inf``: none).
 
@@ -194,6 +214,11 @@ class Distribution:
         if not math.isfinite(x):
             return math.inf
         return math.sqrt(tau * -x) if self.squared else tau * -x
+
+
+@lru_cache(maxsize=4096)
+def _cached_quantile(dist: Distribution, q: float) -> float:
+    return dist._quantile(q)
 
 
 def distribution(name, *, reversed: bool = False, shift: float = 0.0, squared: bool = False, **params) -> Distribution:
@@ -424,6 +449,7 @@ DISTRIBUTIONS.add(DistributionFamily(
     "laplace", _laplace_cdf, _laplace_pdf,
     support=_unbounded, tails=(EXPONENTIAL, EXPONENTIAL),
     log_sf=_laplace_log_sf, log_cdf=_mirror(_laplace_log_sf),
+    accurate_logs=True,
     doc="Standard Laplace (scale 1): F(x) = e^x/2 for x < 0, 1 − e^(−x)/2 for x >= 0; "
         "f(x) = e^(−|x|)/2.",
 ))
@@ -445,6 +471,7 @@ DISTRIBUTIONS.add(DistributionFamily(
     support=lambda: (-math.inf, math.inf), tails=(EXPONENTIAL, EXPONENTIAL),
     log_sf=lambda ops, x: -ops.softplus(x),
     log_cdf=lambda ops, x: -ops.softplus(-x),
+    accurate_logs=True,
     doc="F(x) = 1/(1+exp(−x)). SoftRas is its squared variant with the probabilistic T-conorm.",
 ))
 
@@ -481,6 +508,7 @@ DISTRIBUTIONS.add(DistributionFamily(
     "hyperbolic_secant", _hypsec_cdf, _hypsec_pdf,
     support=_unbounded, tails=(EXPONENTIAL, EXPONENTIAL),
     log_sf=_hypsec_log_sf, log_cdf=_mirror(_hypsec_log_sf),
+    accurate_logs=True,
     doc="Hyperbolic secant (paper's form): F(x) = (2/π)·atan(exp(πx/2)), f(x) = sech(πx/2)/2.",
 ))
 
@@ -540,6 +568,7 @@ DISTRIBUTIONS.add(DistributionFamily(
     "reciprocal", lambda ops, x: _reciprocal_sf(ops, -x), _reciprocal_pdf,
     support=_unbounded, tails=(HEAVY, HEAVY),
     log_sf=_reciprocal_log_sf, log_cdf=_mirror(_reciprocal_log_sf),
+    accurate_logs=True,
     doc="F(x) = 1/2 + x/(2(1 + |x|)), f(x) = 1/(2(1 + |x|)²). Heavy tails (1 − F ~ 1/(2x)): "
         "the culling radius ≈ τ/(2ε) is finite but of no practical use.",
 ))
@@ -575,6 +604,7 @@ DISTRIBUTIONS.add(DistributionFamily(
     "gumbel_max", _gmax_cdf, _gmax_pdf,
     support=_unbounded, tails=(EXPONENTIAL, EXPONENTIAL),
     log_sf=_gmax_log_sf, log_cdf=_gmax_log_cdf,
+    accurate_logs=True,
     doc="Standard Gumbel (maximum): F(x) = exp(−exp(−x)), f(x) = exp(−x − exp(−x)); "
         "log F = −exp(−x) (held at −exp(80) for x < −80 to stay finite). The left tail is "
         "double-exponential, i.e. lighter than EXPONENTIAL.",
@@ -592,6 +622,7 @@ DISTRIBUTIONS.add(DistributionFamily(
     "gumbel_min", _gmin_cdf, _mirror(_gmax_pdf),
     support=_unbounded, tails=(EXPONENTIAL, EXPONENTIAL),
     log_sf=_mirror(_gmax_log_cdf), log_cdf=_mirror(_gmax_log_sf),
+    accurate_logs=True,
     doc="Gumbel (minimum): F(x) = 1 − exp(−exp(x)), f(x) = exp(x − exp(x)), i.e. the reversed "
         "gumbel_max. (The paper's printed Gumbel-Min formula is not increasing; this is the CDF "
         "of the Gumbel-min distribution.) log(1 − F) = −exp(x), held at −exp(80) for x > 80.",
@@ -620,6 +651,7 @@ DISTRIBUTIONS.add(DistributionFamily(
     "exponential", _expon_cdf, _expon_pdf,
     support=lambda: (0.0, math.inf), tails=(BOUNDED, EXPONENTIAL),
     log_sf=lambda ops, x: -ops.where(x >= 0.0, x, 0.0), log_cdf=_expon_log_cdf,
+    accurate_logs=True,
     doc="Standard exponential (rate 1): F(x) = 1 − e^(−x) for x >= 0, 0 below; f(x) = e^(−x) "
         "on [0, ∞); log(1 − F) = −x.",
 ))
@@ -720,6 +752,7 @@ DISTRIBUTIONS.add(DistributionFamily(
     support=lambda shape: (0.0, math.inf), tails=(BOUNDED, EXPONENTIAL),
     params=(Param("shape", POSITIVE, doc="shape k > 0 (scale 1)"),),
     log_sf=_gamma_log_sf, log_cdf=_gamma_log_cdf,
+    accurate_logs=True,
     doc="Gamma with shape k, scale 1: F(x) = P(k, x) (regularized lower incomplete gamma) for "
         "x > 0, 0 below; f(x) = x^(k−1) e^(−x) / Γ(k). P by its power series (32 terms) for "
         "x < k + 1.5, else 1 − Q with Q by Legendre's continued fraction (depth 11), both always "

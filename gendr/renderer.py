@@ -38,10 +38,25 @@ class RenderSettings:
     light_direction: tuple[float, float, float]
     cull_backfaces: bool
     max_pairs: int
+    cutoff: float | None = None
 
     @property
     def tau_value(self) -> float:
         return _scalar(self.tau)
+
+    def culling_distance(self, tau_value: float) -> float:
+        """Distance outside a face beyond which it contributes nothing (screen units; ``inf``:
+        none): the distribution's eps radius, or the reference cut-off sqrt(cutoff·τ) if smaller."""
+        r = self.distribution.culling_distance(self.eps, tau_value)
+        return r if self.cutoff is None else min(r, math.sqrt(self.cutoff * tau_value))
+
+    def cutoff_argument(self, ops, tau):
+        """The argument x = d/τ (or −d²/τ, squared) at the reference cut-off distance
+        d = −sqrt(cutoff·τ): pairs with x <= this are dropped (None: no cut-off). ``tau``: a
+        backend scalar, so that a new τ changes a value, not the code."""
+        if self.cutoff is None:
+            return None
+        return -self.cutoff if self.distribution.squared else -ops.sqrt(self.cutoff / tau)
 
 
 def _number(owner, name, value, *, positive=False, nonneg=False, integer=False):
@@ -142,13 +157,20 @@ class Renderer:
         budget of (pixel, face) pairs processed at once (cache-sized bands are fastest on CPU);
         larger scenes are processed in row bands
         (memory stays O(pixels + faces + max_pairs)).
+    cutoff : float > 0 or None
+        the GenDR reference implementation's distance cut-off (its ``dist_eps``; its shape and pose
+        experiments use 100): a face contributes nothing to a pixel outside it whose squared
+        distance to it is >= ``cutoff``·τ (screen units, τ as given). Not exact: heavy tails
+        (cauchy, reciprocal, levy reversed) lose the coverage beyond it (e.g. cauchy ≈ 0.003 at
+        cutoff 100 for squared distributions), and coverage jumps to 0 there. None (default): no
+        cut-off, only the ``eps`` culling. docs/performance.md measures what it changes.
     backend_options : passed to the backend (e.g. ``device="cuda"``).
     """
 
     def __init__(self, distribution="logistic", tconorm="probabilistic", tau=0.01, image_size=(256, 256),
                  backend="torch", eps=1e-4, *, blend="softmax", gamma=1e-4, background_eps=1e-3,
                  background=(0.0, 0.0, 0.0), ambient=0.5, diffuse=0.5, light_direction=(0.0, 0.0, -1.0),
-                 cull_backfaces=False, max_pairs=262_144, **backend_options):
+                 cull_backfaces=False, max_pairs=262_144, cutoff=None, **backend_options):
         dist = make_distribution(distribution)
         tcn = make_tconorm(tconorm)
         _check_tau(tau)
@@ -170,19 +192,22 @@ class Renderer:
         _number("Renderer", "ambient", ambient, nonneg=True)
         _number("Renderer", "diffuse", diffuse, nonneg=True)
         _number("Renderer", "max_pairs", max_pairs, positive=True, integer=True)
+        if cutoff is not None:
+            cutoff = float(_number("Renderer", "cutoff", cutoff, positive=True))
         light = _triple("Renderer", "light_direction", light_direction)
         if not any(light):
             raise ParameterError("Renderer parameter light_direction must not be the zero vector")
         self.settings = RenderSettings(
             dist, tcn, tau, (H, W), float(eps), blend, float(gamma), float(background_eps),
             _triple("Renderer", "background", background), float(ambient), float(diffuse), light,
-            bool(cull_backfaces), int(max_pairs))
+            bool(cull_backfaces), int(max_pairs), cutoff)
         self.backend = load_backend(backend, **backend_options)
 
     def __repr__(self):
         s = self.settings
         return (f"Renderer({s.distribution.label()}, {s.tconorm.label()}, tau={s.tau_value:g}, "
-                f"image_size={s.image_size}, backend={self.backend.name!r}, eps={s.eps:g}, blend={s.blend!r})")
+                f"image_size={s.image_size}, backend={self.backend.name!r}, eps={s.eps:g}, blend={s.blend!r}"
+                + ("" if s.cutoff is None else f", cutoff={s.cutoff:g}") + ")")
 
     def render(self, vertices, faces, camera: Camera, *, vertex_colors=None, face_colors=None):
         """Render a batch of meshes sharing one topology.

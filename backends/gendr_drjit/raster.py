@@ -35,6 +35,9 @@ from gendr.tconorms import ARCHIMEDEAN, MAX
 #: tile edges tried in order (see tile_size); TILE != 0 forces one
 TILES = (4, 8, 16, 32)
 TILE = 0
+#: pixel rows per lane of the archimedean alpha loops (Pixels): a lane shares one face's reads and
+#: edge set-up between the pixels of its strip; with 8×8 tiles, 16 lanes (one AVX-512 packet) per tile
+STRIP = 4
 #: memory budget of the per-tile face bit masks (tiles · ceil(F/32) · 4 bytes)
 MASK_BYTES = 64 << 20
 #: extra margin of the binning boxes, in pixels (float32 rounding of the box; culled pairs add 0)
@@ -336,30 +339,35 @@ class Bins:
 
 
 class Pixels:
-    """Lanes of the pixel loops in tile-major order (b, ty, tx, y, x), so that a SIMD packet stays
-    in one tile (coherent face lists); ``image_index`` maps the lanes to row-major pixels (lanes of
-    partial border tiles outside the image are computed and dropped)."""
+    """Lanes of the pixel loops in tile-major order (b, ty, tx, lane in tile), so that a SIMD packet
+    stays in one tile (coherent face lists). A lane covers ``rows`` pixels of one column of its tile
+    (a strip; ``rows`` = 1: one pixel): the per-face reads and edge set-up of an iteration are shared
+    by its pixels. ``py`` is the list of the strip's pixel-centre ordinates (``py[r]`` for row r);
+    ``image_index`` maps row-major pixels (b, i, j) to ``r·n + lane`` (lanes of partial border tiles
+    outside the image are computed and dropped)."""
 
-    def __init__(self, T, B, H, W, bins):
+    def __init__(self, T, B, H, W, bins, rows=1):
         t, ntx, nty = bins.tile, bins.ntx, bins.nty
-        n = B * nty * ntx * t * t
+        per_tile = t * t // rows
+        n = B * nty * ntx * per_tile
         lane = dr.arange(T.UInt32, n)
-        tile = lane // (t * t)
-        loc = lane % (t * t)
+        tile = lane // per_tile
+        loc = lane % per_tile
         b = tile // (ntx * nty)
         tyx = tile % (ntx * nty)
-        i = (tyx // ntx) * t + loc // t
+        i = (tyx // ntx) * t + (loc // t) * rows
         j = (tyx % ntx) * t + loc % t
         self.px = (2.0 * T.Float(j) + (1.0 - W)) / H
-        self.py = 1.0 - (2.0 * T.Float(i) + 1.0) / H
+        self.py = [1.0 - (2.0 * T.Float(i + r) + 1.0) / H for r in range(rows)]
+        self.rows = rows
         self.word0 = tile * bins.nw  # the tile's first mask word
         self.face0 = b * bins.F      # faces of batch element b
         self.n = n
         self.bins, self.T = bins, T
-        # row-major image pixel (b, i, j) -> its lane
         q = dr.arange(T.UInt32, B * H * W)
         jj, ii, bb = q % W, (q // W) % H, q // (H * W)
-        self.image_index = (((bb * nty + ii // t) * ntx + jj // t) * t + ii % t) * t + jj % t
+        lane_of = ((bb * nty + ii // t) * ntx + jj // t) * per_tile + ((ii % t) // rows) * t + jj % t
+        self.image_index = ((ii % t) % rows) * n + lane_of
 
     def start(self):
         """Initial face-iterator state (w, bits): positioned on the tile's first face, if any."""
@@ -386,7 +394,16 @@ class Pixels:
         return f, w, bits
 
     def to_image(self, a):
-        return dr.gather(type(a), a, self.image_index)
+        """Row-major image [B·H·W] of per-lane values: one array (rows = 1) or a list of ``rows``."""
+        if not isinstance(a, (list, tuple)):
+            a = [a]
+        if len(a) == 1:
+            return dr.gather(type(a[0]), a[0], self.image_index)
+        slot, lane = self.image_index // self.n, self.image_index % self.n
+        out = dr.gather(type(a[0]), a[0], lane)
+        for r in range(1, len(a)):
+            out = dr.select(slot == r, dr.gather(type(a[r]), a[r], lane), out)
+        return out
 
 
 # ---------------------------------------------------------------------------------------------
@@ -465,24 +482,33 @@ def distance_parts(fc, T, f, px, py, track):
     return d, inside, (i0, i1, tt, ux, uy, act)
 
 
-def generator_terms(dist, tcn, ops, x, eps):
-    """(g, sat, p): generator value (0 where saturated or culled), saturation flag, coverage."""
+def generator_terms(dist, tcn, ops, x, x_eps, x_cut=None):
+    """(g, sat): generator value (0 where saturated or culled) and saturation flag of argument x.
+    Pairs with x < x_eps = F⁻¹(eps) (coverage < eps) are culled: a test on x, so that F itself is
+    never evaluated where the generator reads only log(1 − F) (dead code to Dr.Jit); so are those
+    with x <= x_cut (the reference cut-off, RenderSettings.cutoff_argument)."""
     p, l = dist.cdf_and_log_sf(ops, x)
     sat = ~(l > -math.inf)
     g = tcn.generator(ops, dr.select(sat, 0.5, p), dr.select(sat, math.log(0.5), l))
     sat = sat | ~(g < math.inf)  # overflow: saturated too (the generator's gradient there is finite)
-    if eps > 0:
-        keep = p >= eps
+    if x_eps > -math.inf or x_cut is not None:
+        keep = x >= x_eps if x_eps > -math.inf else None
+        if x_cut is not None:
+            keep = (x > x_cut) if keep is None else keep & (x > x_cut)
         sat = sat & keep
         g = dr.select(keep & ~sat, g, 0.0)
     else:
         g = dr.select(sat, 0.0, g)
-    return g, sat, p
+    return g, sat
 
 
-def coverage(dist, ops, d, tau, eps):
-    p = dist.cdf(ops, dist.argument(ops, d, tau))
-    return dr.select(p >= eps, p, 0.0) if eps > 0 else p
+def coverage(s, ops, d, tau):
+    """p = F(x), 0 where p < eps or beyond the reference cut-off."""
+    x = s.distribution.argument(ops, d, tau)
+    p = s.distribution.cdf(ops, x)
+    p = dr.select(p >= s.eps, p, 0.0) if s.eps > 0 else p
+    x_cut = s.cutoff_argument(ops, dr.detach(tau))
+    return p if x_cut is None else dr.select(x > x_cut, p, 0.0)
 
 
 def shade_pair(fc, T, f, px, py):
@@ -515,39 +541,111 @@ def _local_derivative(fn, x):
         return dr.detach(y), dr.grad(y)
 
 
+def _edge_setup(fc, T, f, px):
+    """Per (lane, face): the face's edges relative to the lane's column ``px``, shared by the pixels
+    of the lane's strip. Edge k runs from corner k to corner k + 1 (E); its unit normal (nx, ny)
+    points into the face (orient); il = 1/|E|²; c offsets degenerate edges (see distance_parts)."""
+    K, Float = fc.K, T.Float
+    Xs = [dr.gather(Float, x, f) for x in fc.Xd]
+    Ys = [dr.gather(Float, y, f) for y in fc.Yd]
+    orient = dr.gather(Float, fc.orient, f)
+    edges = []
+    for k in range(K):
+        Px, Py = Xs[k], Ys[k]
+        Ex, Ey = Xs[(k + 1) % K] - Px, Ys[(k + 1) % K] - Py
+        len2 = Ex * Ex + Ey * Ey
+        nonzero = len2 > 0.0
+        len2s = dr.select(nonzero, len2, 1.0)
+        il = dr.select(nonzero, 1.0 / len2s, 0.0)
+        inv_len = dr.select(nonzero, dr.rsqrt(len2s), 0.0) * orient
+        nx, ny = -Ey * inv_len, Ex * inv_len
+        c = dr.select(orient == 0.0, -1.0, dr.select(nonzero, 0.0, T.big))
+        dx = px - Px
+        edges.append((Py, Ex, Ey, nx, ny, c, il, dx, dx * nx, dx * Ex))
+    return edges
+
+
+def _strip_pixel(T, edges, py, track):
+    """Signed distance (inside > 0) of one pixel of the strip to the face of ``edges`` (see
+    distance_parts, which this equals up to rounding), and with ``track`` the nearest edge's
+    (k, t, ux, uy): the signed distance moves by (1 − t)·u·δP_k + t·u·δP_{k+1}."""
+    d2 = emin = None
+    for k, (Py, Ex, Ey, nx, ny, c, il, dx, dxnx, dxEx) in enumerate(edges):
+        # evaluated in the same order as distance_parts (and the torch backend): the same rounding
+        # decides ties between edges (zero-area faces), whose corners get different gradients
+        dy = py - Py
+        t = dr.clip((dxEx + dy * Ey) * il, 0.0, 1.0)
+        qx, qy = dx - t * Ex, dy - t * Ey
+        dk = qx * qx + qy * qy
+        ek = dxnx + dy * ny + c
+        if d2 is None:
+            d2, emin = dk, ek
+            if track:
+                kd = ke = dr.zeros(T.UInt32, 1)
+                td = te = t
+                qxb, qyb, nxb, nyb = qx, qy, nx, ny
+        else:
+            if track:
+                bd, be = dk < d2, ek < emin
+                kd, td = dr.select(bd, k, kd), dr.select(bd, t, td)
+                qxb, qyb = dr.select(bd, qx, qxb), dr.select(bd, qy, qyb)
+                ke, te = dr.select(be, k, ke), dr.select(be, t, te)
+                nxb, nyb = dr.select(be, nx, nxb), dr.select(be, ny, nyb)
+            d2, emin = dr.minimum(d2, dk), dr.minimum(emin, ek)
+    inside = emin >= 0.0
+    r = dr.sqrt(dr.select(inside, 1.0, dr.maximum(d2, T.tiny)))
+    d = dr.select(inside, emin, -r)
+    if not track:
+        return d, None
+    return d, (dr.select(inside, ke, kd), dr.select(inside, te, td),
+               dr.select(inside, -nxb, qxb / r), dr.select(inside, -nyb, qyb / r))
+
+
+def alpha_sums(s, fc, T, ops, pix, tau):
+    """Per strip row r: S[r] = Σ_faces g(F(x(d, τ))) and the saturation count nsat[r] (no AD)."""
+    dist, tcn, R = s.distribution, s.tconorm, pix.rows
+    x_eps, x_cut = dist.argument_threshold(s.eps), s.cutoff_argument(ops, dr.detach(tau))
+
+    def body(w, bits, *acc):
+        f, w, bits = pix.next_face(w, bits)
+        edges = _edge_setup(fc, T, f, pix.px)
+        S, nsat = list(acc[:R]), list(acc[R:])
+        for r in range(R):
+            d, _ = _strip_pixel(T, edges, pix.py[r], False)
+            g, sat = generator_terms(dist, tcn, ops, dist.argument(ops, d, tau), x_eps, x_cut)
+            S[r], nsat[r] = S[r] + g, nsat[r] + dr.select(sat, 1, 0)
+        return (w, bits, *S, *nsat)
+
+    init = [dr.zeros(T.Float, pix.n) for _ in range(R)] + [dr.zeros(T.UInt32, pix.n) for _ in range(R)]
+    out = dr.while_loop((*pix.start(), *init), lambda w, bits, *a: bits != 0, body)
+    return tuple(out[2:2 + R]), tuple(out[2 + R:])
+
+
 class _Ctx:
     def __init__(self, s, fc, T, ops, pix, tau_grad, resid):
         self.parts, self.tau_grad, self.nsat, self.resid = (s, fc, T, ops, pix), tau_grad, None, resid
 
 
 class AlphaSum(dr.CustomOp):
-    """S = Σ_faces g(F(x(d, τ))) per pixel (archimedean T-conorms), with a hand-written backward.
+    """S = Σ_faces g(F(x(d, τ))) per pixel (archimedean T-conorms, one array per strip row), with a
+    hand-written backward.
 
-    Forward: the per-pixel sum loop without any AD bookkeeping. Backward: a second explicit loop
-    over the same faces that recomputes each pair, takes the local derivative of the spec formulas
-    (forward-mode AD on the scalar argument x, see _local_derivative), and scatter-adds
-    δ_S · ∂g/∂x · ∂x/∂d · ∂d/∂(corner) into the two corners of the nearest edge (the linearised
-    distance of signed_distance) and δ_S · ∂g/∂x · ∂x/∂τ into a per-pixel τ accumulator (summed once
-    after the loop: no atomics on one address). Same derivatives as Dr.Jit's generic reverse-mode
-    sum loop (tests/test_drjit_freeze.py), about half its work per pair."""
+    Forward: :func:`alpha_sums`, without any AD bookkeeping. Backward: a second loop over the same
+    faces that recomputes each pair, takes the local derivative of the spec formulas (forward-mode
+    AD on the scalar argument x, see _local_derivative), accumulates δ_S · ∂g/∂x · ∂x/∂d ·
+    ∂d/∂(corner) over the lane's strip for the corners of the face (the signed distance's exact
+    first-order dependence: the two corners of the nearest edge) and scatter-adds that once per
+    (lane, face), pre-reduced over the SIMD packet (its lanes share the face); δ_S · ∂g/∂x · ∂x/∂τ
+    goes into a per-lane τ accumulator summed once after the loop. Same derivatives as Dr.Jit's
+    generic reverse-mode sum loop (tests/test_drjit_freeze.py)."""
 
     def eval(self, Xall, Yall, tau, ctx):
         self.ctx, self.tau = ctx, tau
         s, fc, T, ops, pix = ctx.parts
         if ctx.resid is not None:  # S and nsat of an earlier forward pass of the same inputs
             S, ctx.nsat = ctx.resid
-            return T.Float(S)
-        dist, tcn, eps = s.distribution, s.tconorm, s.eps
-        px, py = pix.px, pix.py
-
-        def body(w, bits, S, nsat):
-            f, w, bits = pix.next_face(w, bits)
-            d, _, _ = distance_parts(fc, T, f, px, py, False)
-            g, sat, _ = generator_terms(dist, tcn, ops, dist.argument(ops, d, tau), eps)
-            return w, bits, S + g, nsat + dr.select(sat, 1, 0)
-
-        _, _, S, nsat = dr.while_loop((*pix.start(), dr.zeros(T.Float, pix.n), dr.zeros(T.UInt32, pix.n)),
-                                      lambda w, bits, S, nsat: bits != 0, body, labels=("w", "bits", "S", "nsat"))
+            return tuple(T.Float(a) for a in S)
+        S, nsat = alpha_sums(s, fc, T, ops, pix, tau)
         # stored when the pass runs (not re-traced into the consumers of S, e.g. the backward pass)
         dr.schedule(S, nsat)
         ctx.nsat = nsat
@@ -558,39 +656,43 @@ class AlphaSum(dr.CustomOp):
 
     def backward(self):
         s, fc, T, ops, pix = self.ctx.parts
-        dist, tcn, eps = s.distribution, s.tconorm, s.eps
+        dist, tcn, R, K = s.distribution, s.tconorm, pix.rows, fc.K
         Float = T.Float
         tau = dr.detach(self.tau)
+        x_eps, x_cut = dist.argument_threshold(s.eps), s.cutoff_argument(ops, tau)
         want_xy = dr.grad_enabled(fc.Xall) if fc.ad else False
         want_tau = self.ctx.tau_grad
-        delta = Float(self.grad_out())
-        if dr.width(delta) != pix.n:
-            delta = dr.zeros(Float, pix.n) + delta
-        px, py = pix.px, pix.py
+        delta = [Float(g) for g in self.grad_out()]
+        delta = [g if dr.width(g) == pix.n else dr.zeros(Float, pix.n) + g for g in delta]
         gX = dr.zeros(Float, dr.width(fc.Xall)) if want_xy else None
         gY = dr.zeros(Float, dr.width(fc.Yall)) if want_xy else None
-        mode = BWD_MODE
 
         def body(w, bits, gt):
             f, w, bits = pix.next_face(w, bits)
-            d, _, (i0, i1, tt, ux, uy, act) = distance_parts(fc, T, f, px, py, True)
-            x = dist.argument(ops, d, tau)
-            _, gx = _local_derivative(lambda xx: generator_terms(dist, tcn, ops, xx, eps)[0], x)
-            # a zero incoming gradient contributes nothing, even where ∂g/∂x overflowed (0·inf):
-            # as in Dr.Jit's reverse mode (e.g. a pixel whose sum S saturated: ∂A/∂S = 0)
-            coef = dr.select(delta != 0.0, delta * gx, 0.0)
+            edges = _edge_setup(fc, T, f, pix.px)
+            acc = [[Float(0.0), Float(0.0)] for _ in range(K)]  # (x, y) per corner, over the strip
+            for r in range(R):
+                d, (kk, tt, ux, uy) = _strip_pixel(T, edges, pix.py[r], True)
+                x = dist.argument(ops, d, tau)
+                _, gx = _local_derivative(lambda xx: generator_terms(dist, tcn, ops, xx, x_eps, x_cut)[0], x)
+                # a zero incoming gradient contributes nothing, even where ∂g/∂x overflowed (0·inf):
+                # as in Dr.Jit's reverse mode (e.g. a pixel whose sum S saturated: ∂A/∂S = 0)
+                coef = dr.select(delta[r] != 0.0, delta[r] * gx, 0.0)
+                if want_xy:
+                    _, xd = _local_derivative(lambda dd: dist.argument(ops, dd, tau), d)
+                    cd = coef * xd
+                    c0, c1 = cd * (1.0 - tt), cd * tt
+                    for k in range(K):
+                        wk = dr.select(kk == k, c0, dr.select(kk == (k - 1) % K, c1, 0.0))
+                        acc[k][0] += wk * ux
+                        acc[k][1] += wk * uy
+                if want_tau:
+                    _, xt = _local_derivative(lambda tt_: dist.argument(ops, d, tt_), Float(tau))
+                    gt = gt + coef * xt
             if want_xy:
-                _, xd = _local_derivative(lambda dd: dist.argument(ops, dd, tau), d)
-                cd = coef * xd
-                a = act & (cd != 0.0)
-                c0, c1 = cd * (1.0 - tt), cd * tt
-                dr.scatter_reduce(dr.ReduceOp.Add, gX, c0 * ux, i0, a, mode=mode)
-                dr.scatter_reduce(dr.ReduceOp.Add, gY, c0 * uy, i0, a, mode=mode)
-                dr.scatter_reduce(dr.ReduceOp.Add, gX, c1 * ux, i1, a, mode=mode)
-                dr.scatter_reduce(dr.ReduceOp.Add, gY, c1 * uy, i1, a, mode=mode)
-            if want_tau:
-                _, xt = _local_derivative(lambda tt_: dist.argument(ops, d, tt_), Float(tau))
-                gt = gt + coef * xt
+                for k in range(K):
+                    for g, v in ((gX, acc[k][0]), (gY, acc[k][1])):
+                        dr.scatter_reduce(dr.ReduceOp.Add, g, v, f * K + k, v != 0.0, mode=BWD_MODE)
             return w, bits, gt
 
         _, _, gt = dr.while_loop((*pix.start(), dr.zeros(Float, pix.n)), lambda w, bits, gt: bits != 0, body,
@@ -605,39 +707,48 @@ class AlphaSum(dr.CustomOp):
         return "gendr alpha sum"
 
 
-def alpha_archimedean(s, fc, T, ops, pix, tau, resid=None, keep_sums=False):
-    """Alpha of an archimedean T-conorm; sets fc.S, fc.nsat (the loop's sums). ``resid``: (S, nsat)
-    of an earlier forward pass of the same inputs (frozen backward replays reuse them);
-    ``keep_sums``: store S, nsat when the loop runs (the frozen forward returns them)."""
+def alpha_archimedean(s, fc, T, ops, pix, pix1, tau, resid=None, keep_sums=False):
+    """Alpha of an archimedean T-conorm as a row-major image [B·H·W]; sets fc.S, fc.nsat (the
+    loop's sums). ``pix``: the strip lanes of :func:`alpha_sums`; ``pix1`` one pixel per lane (the
+    generic reverse-mode loop). ``resid``: (S, nsat) of an earlier forward pass of the same inputs
+    (frozen backward replays reuse them); ``keep_sums``: store S, nsat when the loop runs (the frozen
+    forward returns them)."""
     tcn = s.tconorm
-    if CUSTOM_BACKWARD and (fc.ad or dr.grad_enabled(tau)) and dr.width(tau) == 1:
+    ad = fc.ad or dr.grad_enabled(tau)
+    if ad and not CUSTOM_BACKWARD:
+        S, nsat = alpha_sum_generic(s, fc, T, ops, pix1, tau)
+        S, nsat, pix = (S,), (nsat,), pix1
+    elif ad:
         Xall = fc.Xall if fc.ad else dr.zeros(T.Float, 1)
         Yall = fc.Yall if fc.ad else dr.zeros(T.Float, 1)
         ctx = _Ctx(s, fc, T, ops, pix, dr.grad_enabled(tau), resid)  # (not a PyTree: passed through as is)
         S = dr.custom(AlphaSum, Xall, Yall, tau, ctx)
         nsat = ctx.nsat
-    elif resid is not None and not (fc.ad or dr.grad_enabled(tau)):
+    elif resid is not None:
         S, nsat = resid
     else:
-        S, nsat = alpha_sum_generic(s, fc, T, ops, pix, tau)
-        if keep_sums:
-            dr.schedule(S, nsat)
+        S, nsat = alpha_sums(s, fc, T, ops, pix, tau)
+        dr.schedule(S, nsat)  # one loop kernel for all rows (each gather below would evaluate its own)
     fc.S, fc.nsat = S, nsat
-    pos = S > 0.0
-    A = dr.select(pos, tcn.from_generator_sum(ops, dr.select(pos, S, 1.0)), 0.0)
-    return dr.select(nsat > 0, 1.0, A)
+    A = []
+    for Sr, nr in zip(S, nsat):
+        pos = Sr > 0.0
+        Ar = dr.select(pos, tcn.from_generator_sum(ops, dr.select(pos, Sr, 1.0)), 0.0)
+        A.append(dr.select(nr > 0, 1.0, Ar))
+    return pix.to_image(A)
 
 
 def alpha_sum_generic(s, fc, T, ops, pix, tau):
     """S and the saturation count by Dr.Jit's generic reverse-mode sum loop (the reference the
     hand-written backward of AlphaSum is tested against)."""
-    dist, tcn, eps = s.distribution, s.tconorm, s.eps
-    px, py = pix.px, pix.py
+    dist, tcn = s.distribution, s.tconorm
+    x_eps, x_cut = dist.argument_threshold(s.eps), s.cutoff_argument(ops, dr.detach(tau))
+    px, py = pix.px, pix.py[0]
 
     def body(w, bits, S, nsat):
         f, w, bits = pix.next_face(w, bits)
         d, _ = signed_distance(fc, T, f, px, py)
-        g, sat, _ = generator_terms(dist, tcn, ops, dist.argument(ops, d, tau), eps)
+        g, sat = generator_terms(dist, tcn, ops, dist.argument(ops, d, tau), x_eps, x_cut)
         return w, bits, S + g, nsat + dr.select(sat, 1, 0)
 
     _, _, S, nsat = dr.while_loop((*pix.start(), dr.zeros(T.Float, pix.n), dr.zeros(T.UInt32, pix.n)),
@@ -647,14 +758,14 @@ def alpha_sum_generic(s, fc, T, ops, pix, tau):
 
 
 def alpha_max(s, fc, T, ops, pix, tau):
-    dist, tcn, eps = s.distribution, s.tconorm, s.eps
-    px, py = pix.px, pix.py
+    tcn = s.tconorm
+    px, py = pix.px, pix.py[0]
     tau_d = dr.detach(tau)
 
     def body(w, bits, best, arg):
         f, w, bits = pix.next_face(w, bits)
         d, _ = signed_distance(fc, T, f, px, py)
-        p = coverage(dist, ops, d, tau_d, eps)
+        p = coverage(s, ops, d, tau_d)
         better = p > best
         return w, bits, dr.select(better, p, best), dr.select(better, f, arg)
 
@@ -666,11 +777,11 @@ def alpha_max(s, fc, T, ops, pix, tau):
     has = arg != _NONE
     f = dr.select(has, arg, 0)
     d, _ = signed_distance(fc, T, f, px, py)
-    return dr.select(has, coverage(dist, ops, d, tau, eps), 0.0)
+    return dr.select(has, coverage(s, ops, d, tau), 0.0)
 
 
 def rgb_hard(s, fc, T, ops, pix):
-    px, py = pix.px, pix.py
+    px, py = pix.px, pix.py[0]
     cull = s.cull_backfaces
 
     def body(w, bits, best, arg):
@@ -691,15 +802,14 @@ def rgb_hard(s, fc, T, ops, pix):
 
 
 def rgb_softmax(s, fc, T, ops, pix, tau):
-    dist, eps = s.distribution, s.eps
-    px, py = pix.px, pix.py
+    px, py = pix.px, pix.py[0]
     gamma, beps, cull = s.gamma, s.background_eps, s.cull_backfaces
     zscale = 1.0 / (fc.far - fc.near)
     tau_d = dr.detach(tau)
 
     def live_zt(f, tau_):
         d, _ = signed_distance(fc, T, f, px, py)
-        p = coverage(dist, ops, d, tau_, eps)
+        p = coverage(s, ops, d, tau_)
         live = p > 0.0
         if cull:
             live = live & dr.gather(T.Bool, fc.front, f)
@@ -738,7 +848,7 @@ def render(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, colors, per_
 
 def culling_radius(settings, tau_value):
     """The binning / culling radius (spec culling distance plus a relative margin), a Python float."""
-    return settings.distribution.culling_distance(settings.eps, tau_value) * (1 + 1e-6) + 1e-6
+    return settings.culling_distance(tau_value) * (1 + 1e-6) + 1e-6
 
 
 def render_parts(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, colors, per_face, tau, *, cull_r=None,
@@ -762,22 +872,23 @@ def render_parts(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, colors
         cull_r = dr.opaque(T.Float, r, 1) if math.isfinite(r) else None
     fc.cull_lo = -cull_r if cull_r is not None else None
     bins = Bins(fc, H, W, cull_r if cull_r is not None else math.inf, T)
-    pix = Pixels(T, fc.B, H, W, bins)
+    pix1 = Pixels(T, fc.B, H, W, bins)  # one pixel per lane: max, "or", the RGB blends
     fc.S = fc.nsat = None
     if settings.tconorm.kind == ARCHIMEDEAN:
-        A = alpha_archimedean(settings, fc, T, ops, pix, tau, resid, keep_sums)
+        strips = Pixels(T, fc.B, H, W, bins, rows=min(STRIP, bins.tile))
+        A = alpha_archimedean(settings, fc, T, ops, strips, pix1, tau, resid, keep_sums)
     else:
-        A = alpha_max(settings, fc, T, ops, pix, tau)
+        A = pix1.to_image(alpha_max(settings, fc, T, ops, pix1, tau))
     if settings.blend is None:
         rgb = None
     elif settings.blend == "hard":
-        rgb = rgb_hard(settings, fc, T, ops, pix)
+        rgb = rgb_hard(settings, fc, T, ops, pix1)
     else:
-        rgb = rgb_softmax(settings, fc, T, ops, pix, tau)
+        rgb = rgb_softmax(settings, fc, T, ops, pix1, tau)
     lane = dr.arange(T.UInt32, 4 * fc.B * H * W)
-    p, ch = dr.gather(T.UInt32, pix.image_index, lane // 4), lane % 4
+    p, ch = lane // 4, lane % 4
     out = dr.select(ch == 3, dr.gather(T.Float, A, p), 0.0)
     if rgb is not None:
         for c in range(3):
-            out = dr.select(ch == c, dr.gather(T.Float, rgb[c], p), out)
+            out = dr.select(ch == c, dr.gather(T.Float, pix1.to_image(rgb[c]), p), out)
     return out, fc.B, fc

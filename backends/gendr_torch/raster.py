@@ -332,9 +332,11 @@ class Plan:
         return face, pix, (2 * col + 1 - W).to(dtype) / H, 1 - (2 * row + 1).to(dtype) / H
 
 
-def _generator_terms(dist, tcn, x, eps):
-    """Per-pair generator values g(p) (0 where saturated or culled by p < eps) and the mask of
-    saturated pairs (p = 1, or g overflowed), which set their pixel's alpha to 1."""
+def _generator_terms(dist, tcn, x, eps, x_cut=None):
+    """Per-pair generator values g(p) (0 where saturated, or culled: coverage < eps, tested as
+    x < F⁻¹(eps) like the Dr.Jit backend, where F itself may go unevaluated) and the mask of
+    saturated pairs (p = 1, or g overflowed), which set their pixel's alpha to 1. ``x_cut``: pairs
+    with x <= x_cut are dropped too (the reference cut-off, RenderSettings.cutoff_argument)."""
     p, log1m = dist.cdf_and_log_sf(ops, x)
     sat = ~torch.isfinite(log1m)
     g = tcn.generator(ops, torch.where(sat, 0.5, p), torch.where(sat, math.log(0.5), log1m))
@@ -342,11 +344,19 @@ def _generator_terms(dist, tcn, x, eps):
     if bool(over.any()):
         sat = sat | over
         g = tcn.generator(ops, torch.where(sat, 0.5, p), torch.where(sat, math.log(0.5), log1m))
-    if eps > 0:
-        keep = p >= eps
+    keep = _keep(dist, x, eps, x_cut)
+    if keep is not None:
         sat = sat & keep
         return torch.where(keep & ~sat, g, 0.0), sat
     return torch.where(sat, 0.0, g), sat
+
+
+def _keep(dist, x, eps, x_cut):
+    """Pairs that count: x >= F⁻¹(eps) (coverage >= eps) and x > x_cut; None: all."""
+    keep = x >= dist.argument_threshold(eps) if eps > 0 else None
+    if x_cut is not None:
+        keep = (x > x_cut) if keep is None else keep & (x > x_cut)
+    return keep
 
 
 def _from_sum(tcn, S, nsat):
@@ -363,6 +373,7 @@ class SoftAlpha(torch.autograd.Function):
     def forward(ctx, X, Y, tau, plan):
         s = plan.settings
         dist, tcn, eps = s.distribution, s.tconorm, s.eps
+        x_cut = s.cutoff_argument(ops, tau.detach())
         W = s.image_size[1]
         B = plan.fc.B
         geom = edge_table(X, Y)
@@ -373,7 +384,7 @@ class SoftAlpha(torch.autograd.Function):
             d, _ = signed_distance(geom.index_select(1, face), plan.fc.K, px, py)
             x = dist.argument(ops, d, tau)
             if tcn.kind == ARCHIMEDEAN:
-                g, sat = _generator_terms(dist, tcn, x, eps)
+                g, sat = _generator_terms(dist, tcn, x, eps, x_cut)
                 S = X.new_zeros(npix).index_add_(0, pix, g)
                 nsat = torch.zeros(npix, dtype=torch.int32, device=X.device).index_add_(0, pix, sat.to(torch.int32))
                 parts.append(torch.stack([S, nsat.to(S.dtype)], 0).reshape(2, B, r1 - r0, W))
@@ -381,6 +392,8 @@ class SoftAlpha(torch.autograd.Function):
                 p = dist.cdf(ops, x)
                 if eps > 0:
                     p = torch.where(p >= eps, p, 0.0)
+                if x_cut is not None:
+                    p = torch.where(x > x_cut, p, 0.0)
                 A = X.new_zeros(npix).scatter_reduce_(0, pix.long(), p, "amax", include_self=True)
                 parts.append(A.reshape(1, B, r1 - r0, W))
         acc = torch.cat(parts, 2)
@@ -400,6 +413,7 @@ class SoftAlpha(torch.autograd.Function):
         plan = ctx.plan
         s = plan.settings
         dist, tcn, eps = s.distribution, s.tconorm, s.eps
+        x_cut = s.cutoff_argument(ops, tau.detach())
         K = plan.fc.K
         if tcn.kind not in (ARCHIMEDEAN, MAX):
             return None, None, None, None
@@ -420,10 +434,11 @@ class SoftAlpha(torch.autograd.Function):
                 tau_ = tau.detach().requires_grad_(True)
                 x = dist.argument(ops, d_, tau_)
                 if tcn.kind == ARCHIMEDEAN:
-                    out, _ = _generator_terms(dist, tcn, x, eps)
+                    out, _ = _generator_terms(dist, tcn, x, eps, x_cut)
                 else:  # max: the gradient goes to one face attaining the maximum
                     p = dist.cdf(ops, x)
                     pm = torch.where(p >= eps, p, 0.0) if eps > 0 else p
+                    pm = torch.where(x > x_cut, pm, 0.0) if x_cut is not None else pm
                     Ap = A[:, r0:r1].reshape(-1)
                     win = (pm.detach() == Ap[pix]) & (pm.detach() > 0)
                     order = torch.where(win, torch.arange(pix.numel(), device=pix.device), -1)
@@ -450,8 +465,12 @@ def rgb_band(plan, X, Y, shade, tau, r0, r1):
     npix = fc.B * (r1 - r0) * W
     face, pix, px, py = plan.pairs(r0, r1)
     d, inside = signed_distance(edge_table(X, Y).index_select(1, face), fc.K, px, py)
-    p = s.distribution.cdf(ops, s.distribution.argument(ops, d, tau))
+    x = s.distribution.argument(ops, d, tau)
+    p = s.distribution.cdf(ops, x)
     keep = p >= s.eps if s.eps > 0 else None
+    x_cut = s.cutoff_argument(ops, tau.detach())
+    if x_cut is not None:
+        keep = (x > x_cut) if keep is None else keep & (x > x_cut)
     rgb = _blend(s, fc, shade.index_select(1, face), pix, npix, px, py, p, keep, inside, face)
     return rgb.reshape(fc.B, r1 - r0, W, 3)
 
@@ -503,7 +522,7 @@ def render(settings, camera, verts, faces, colors, per_face):
     fc = prepare_faces(settings, camera, verts, faces, colors, per_face)
     tau = settings.tau
     tau = tau.to(verts.dtype) if isinstance(tau, torch.Tensor) else torch.tensor(float(tau), dtype=verts.dtype, device=verts.device)
-    radius = settings.distribution.culling_distance(settings.eps, settings.tau_value)
+    radius = settings.culling_distance(settings.tau_value)
     with torch.no_grad():
         i0, i1, j0, j1 = pixel_ranges(fc, H, W, radius)
         bands = row_bands(i0, i1, j1 - j0 + 1, H, settings.max_pairs)
