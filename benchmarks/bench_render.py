@@ -81,11 +81,12 @@ def measure(fn, repeats):
     return times
 
 
-def probe(backend, name, mode, threads, cold=False):
+def probe(backend, name, mode, threads, cold=False, device="cpu"):
     """Run one call of ``mode`` in a fresh interpreter: {"peak_extra_mb", "first_call_ms"}.
 
     ``cold``: with HOME pointing to an empty directory, so Dr.Jit finds no cached kernels."""
-    cmd = [sys.executable, __file__, "--backend", backend, "--threads", str(threads), "--memory-probe", name, mode]
+    cmd = [sys.executable, __file__, "--backend", backend, "--threads", str(threads), "--device", device,
+           "--memory-probe", name, mode]
     env = dict(os.environ)
     if cold:
         import tempfile
@@ -121,38 +122,49 @@ def machine():
             "numpy": np.__version__, "gendr": gendr.__version__, "git_commit": commit}
 
 
-def setup(backend, name, threads, freeze=False):
-    """(forward, forward_backward, info) callables of one case."""
+def _drjit_tensor(device):
+    """Dr.Jit's float32 AD tensor type of ``device`` ("llvm" or "cuda")."""
+    import importlib
+    return importlib.import_module(f"drjit.{device}.ad").TensorXf
+
+
+def setup(backend, name, threads, freeze=False, device="cpu"):
+    """(forward, forward_backward, info) callables of one case. ``device``: "cpu" or "cuda" (torch:
+    the inputs' device; drjit: its LLVM or CUDA variant)."""
     if backend == "drjit":
-        return setup_drjit(name, threads, freeze=freeze)
+        return setup_drjit(name, threads, freeze=freeze, device="cuda" if device == "cuda" else "llvm")
     import torch  # the torch backend: inputs are torch tensors
     torch.set_num_threads(threads)
+    sync = torch.cuda.synchronize if device == "cuda" else (lambda: None)
     cfg = CASES[name]
     mesh = icosphere(cfg["subdivisions"])
-    verts = torch.tensor(mesh.vertices, dtype=torch.float32)
-    faces = torch.tensor(mesh.faces)
+    verts = torch.tensor(mesh.vertices, dtype=torch.float32, device=device)
+    faces = torch.tensor(mesh.faces, device=device)
     cam = gendr.PerspectiveCamera(eye=(0.0, 0.0, 3.0), fov_y=60.0)
     r = gendr.Renderer("logistic", "probabilistic", tau=0.01, image_size=cfg["size"], eps=1e-4,
                        blend=None, backend=backend)
 
     def forward():
         with torch.no_grad():
-            return r.render(verts, faces, cam)
+            img = r.render(verts, faces, cam)
+        sync()
+        return img
 
     def forward_backward():
         v = verts.clone().requires_grad_(True)
         r.render(v, faces, cam)[..., 3].sum().backward()
+        sync()
         return v.grad
 
-    info = {"case": name, "backend": backend, "faces": int(faces.shape[0]), "image_size": cfg["size"],
+    info = {"case": name, "backend": backend, "device": device, "faces": int(faces.shape[0]), "image_size": cfg["size"],
             "instance": "logistic|probabilistic", "tau": 0.01, "eps": 1e-4, "blend": None, "threads": threads,
             "versions": {"torch": torch.__version__}}
     return {"forward": forward, "forward_backward": forward_backward}, info
 
 
-def setup_drjit(name, threads, tau=0.01, freeze=False):
+def setup_drjit(name, threads, tau=0.01, freeze=False, device="llvm"):
     import drjit as dr
-    from drjit.llvm.ad import TensorXf
+    TensorXf = _drjit_tensor(device)
     dr.set_thread_count(threads)
     cfg = CASES[name]
     mesh = icosphere(cfg["subdivisions"])
@@ -162,7 +174,7 @@ def setup_drjit(name, threads, tau=0.01, freeze=False):
 
     def renderer(t=tau):
         rr = gendr.Renderer("logistic", "probabilistic", tau=t, image_size=cfg["size"], eps=1e-4, blend=None,
-                            backend="drjit", device="llvm", freeze=freeze)
+                            backend="drjit", device=device, freeze=freeze)
         if freeze and shared:  # one backend object: its frozen functions serve every τ
             rr.backend = shared[0]
         shared.append(rr.backend)
@@ -186,10 +198,11 @@ def setup_drjit(name, threads, tau=0.01, freeze=False):
         dr.sync_thread()
         return g
 
-    info = {"case": name, "backend": "drjit", "device": "llvm", "dtype": "float32", "faces": int(faces.shape[0]),
+    info = {"case": name, "backend": "drjit", "device": device, "dtype": "float32", "faces": int(faces.shape[0]),
             "image_size": cfg["size"], "instance": "logistic|probabilistic", "tau": tau, "eps": 1e-4, "blend": None,
             "threads": threads, "freeze": freeze, "versions": {"drjit": dr.__version__}}
-    return {"forward": forward, "forward_backward": forward_backward, "_renderer": renderer, "_verts": verts}, info
+    return {"forward": forward, "forward_backward": forward_backward, "_renderer": renderer, "_verts": verts,
+            "_tensor": TensorXf}, info
 
 
 def kernel_stats(fn):
@@ -201,7 +214,7 @@ def optimization_loop(modes, steps=100):
     """``steps`` forward+backward calls on changing vertices (a training loop): wall times and the
     number of kernels compiled; then 5 renders with different τ (opaque: nothing may compile)."""
     import drjit as dr
-    from drjit.llvm.ad import TensorXf
+    TensorXf = modes["_tensor"]
     fb, r = modes["forward_backward"], modes["_renderer"]()
     rng = np.random.default_rng(0)
     base = np.asarray(modes["_verts"].numpy())
@@ -242,8 +255,9 @@ def time_split(fn, repeats):
             "host_ms": statistics.median([w - k for w, k in zip(walls, kern)])}
 
 
-def run_case(backend, name, repeats, threads, freeze=True):
-    modes, out = setup(backend, name, threads)
+def run_case(backend, name, repeats, threads, freeze=True, device="cpu"):
+    """One case's JSON. On a CUDA device the peak extra memory (host RSS) is left out."""
+    modes, out = setup(backend, name, threads, device=device)
     if backend == "drjit":
         img = modes["forward"]()
         out["alpha_sum"] = float(np.asarray(img.numpy())[..., 3].astype(np.float64).sum())
@@ -251,16 +265,18 @@ def run_case(backend, name, repeats, threads, freeze=True):
         out["alpha_sum"] = float(modes["forward"]()[..., 3].sum())
     for label in ("forward", "forward_backward"):
         fn = modes[label]
-        out[label] = summary(measure(fn, repeats)) | {"peak_extra_mb": peak_extra_mb(backend, name, label, threads)}
+        out[label] = summary(measure(fn, repeats))
+        if device == "cpu":
+            out[label]["peak_extra_mb"] = peak_extra_mb(backend, name, label, threads)
         if backend == "drjit":
-            out[label]["first_call_cold_ms"] = probe(backend, name, label, threads, cold=True)["first_call_ms"]
+            out[label]["first_call_cold_ms"] = probe(backend, name, label, threads, True, device)["first_call_ms"]
             out[label] |= kernel_stats(fn)
     if backend == "drjit":
         out["time_split"] = {label: time_split(modes[label], repeats) for label in ("forward", "forward_backward")}
     if backend == "drjit" and name == "default":
         out["optimization_loop"] = optimization_loop(modes)
     if backend == "drjit" and freeze:  # the same with freeze=True (dr.freeze replays, gendr_drjit.frozen)
-        fmodes, _ = setup_drjit(name, threads, freeze=True)
+        fmodes, _ = setup(backend, name, threads, freeze=True, device=device)
         fr = out["frozen"] = {}
         for label in ("forward", "forward_backward"):
             fr[label] = summary(measure(fmodes[label], repeats)) | kernel_stats(fmodes[label])
@@ -278,10 +294,12 @@ def main(argv=None):
     ap.add_argument("--threads", type=int, default=os.cpu_count())
     ap.add_argument("--out", type=Path, help="write the JSON here (also printed)")
     ap.add_argument("--no-freeze", action="store_true", help="drjit: skip the freeze=True measurements")
+    ap.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
+                    help="cuda: torch inputs on the GPU / Dr.Jit's CUDA variant (no host-memory figures)")
     ap.add_argument("--memory-probe", nargs=2, metavar=("CASE", "MODE"), help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.memory_probe:
-        modes, _ = setup(a.backend, a.memory_probe[0], a.threads)
+        modes, _ = setup(a.backend, a.memory_probe[0], a.threads, device=a.device)
         rss0 = _status_kb("VmRSS")
         _reset_peak()
         t0 = time.perf_counter()
@@ -289,7 +307,7 @@ def main(argv=None):
         dt = time.perf_counter() - t0
         print(json.dumps({"peak_extra_mb": (_status_kb("VmHWM") - rss0) / 1024.0, "first_call_ms": 1000.0 * dt}))
         return 0
-    result = {"machine": machine(), "results": [run_case(a.backend, c, a.repeats, a.threads, not a.no_freeze)
+    result = {"machine": machine(), "results": [run_case(a.backend, c, a.repeats, a.threads, not a.no_freeze, a.device)
                                                 for c in (a.case or ["default"])]}
     text = json.dumps(result, indent=2)
     print(text)
