@@ -81,18 +81,23 @@ def measure(fn, repeats):
     return times
 
 
-def probe(backend, name, mode, threads, cold=False, device="cpu"):
-    """Run one call of ``mode`` in a fresh interpreter: {"peak_extra_mb", "first_call_ms"}.
+def run_fresh(script, args, cold=False):
+    """Run ``script args`` in a fresh interpreter; the last line of its output, parsed as JSON.
 
     ``cold``: with HOME pointing to an empty directory, so Dr.Jit finds no cached kernels."""
-    cmd = [sys.executable, __file__, "--backend", backend, "--threads", str(threads), "--device", device,
-           "--memory-probe", name, mode]
-    env = dict(os.environ)
-    if cold:
-        import tempfile
-        env["HOME"] = tempfile.mkdtemp(prefix="gendr-bench-home-")
-    out = subprocess.run(cmd, capture_output=True, text=True, check=True, env=env).stdout
+    import tempfile
+    with tempfile.TemporaryDirectory(prefix="gendr-bench-home-") as home:
+        env = dict(os.environ, HOME=home) if cold else None
+        out = subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True, check=True,
+                             env=env).stdout
     return json.loads(out.strip().splitlines()[-1])
+
+
+def probe(backend, name, mode, threads, cold=False, device="cpu"):
+    """Run one call of ``mode`` in a fresh interpreter: {"peak_extra_mb", "first_call_ms"} (``cold``:
+    with an empty Dr.Jit kernel cache, see :func:`run_fresh`)."""
+    return run_fresh(__file__, ["--backend", backend, "--threads", str(threads), "--device", device,
+                                "--memory-probe", name, mode], cold)
 
 
 def peak_extra_mb(backend, name, mode, threads):

@@ -59,9 +59,11 @@ def renderer_tau(width: float, squared: bool) -> float:
     return float(width) ** 2 if squared else float(width)
 
 
-def make_renderer(dist, tcn, tau, image_size, *, backend="torch", eps=1e-4):
-    """A silhouette-only renderer (``blend=None``): alpha in channel 3."""
-    return gendr.Renderer(dist, tcn, tau=tau, image_size=image_size, backend=backend, eps=eps, blend=None)
+def make_renderer(dist, tcn, tau, image_size, *, backend="torch", eps=1e-4, **backend_options):
+    """A silhouette-only renderer (``blend=None``): alpha in channel 3. ``backend_options`` go to the
+    backend (e.g. ``freeze=True`` for ``"drjit"``)."""
+    return gendr.Renderer(dist, tcn, tau=tau, image_size=image_size, backend=backend, eps=eps, blend=None,
+                          **backend_options)
 
 
 def load_target_mesh(name_or_path: str):

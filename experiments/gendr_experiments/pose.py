@@ -27,7 +27,7 @@ import gendr
 from .common import (axis_angle_to_matrix, instance_from_config, iou_loss_per_view, load_target_mesh,
                      log_tau_schedule, make_renderer, random_rotation, rotation_about, rotation_angle_deg)
 
-__all__ = ["POSE_DEFAULTS", "run_pose", "SUCCESS_DEGREES"]
+__all__ = ["POSE_DEFAULTS", "run_pose", "PoseProblem", "SUCCESS_DEGREES"]
 
 SUCCESS_DEGREES = 3.0
 
@@ -74,64 +74,101 @@ def _render(renderer, verts, faces, R, distance, fov):
     return renderer.render(v, faces, cam)[..., 3]
 
 
-def run_pose(config: dict | None = None, *, callback=None, **overrides) -> dict:
-    """Run one pose optimisation; returns ``metric`` (final angular error in degrees), ``success``,
-    ``initial_error``, ``distance_error`` (relative), ``seconds``, ... (see the module docstring)."""
-    cfg = dict(POSE_DEFAULTS)
-    cfg.update(config or {})
-    cfg.update(overrides)
-    t0 = time.perf_counter()
-    prob = pose_problem(cfg)
-    size = int(cfg["image_size"])
-    mesh = load_target_mesh(cfg["target"])
-    verts = torch.tensor(mesh.vertices, dtype=torch.float32)
-    faces = torch.tensor(mesh.faces)
-    hard = gendr.Renderer("heaviside", "or", tau=1.0, image_size=size, backend=cfg["backend"], eps=0.0, blend=None)
-    with torch.no_grad():
-        ref = _render(hard, verts, faces, torch.tensor(prob["R_true"], dtype=torch.float32), prob["d_true"], prob["fov"])
+class PoseProblem:
+    """One pose optimisation, built once: the random reference and initial pose, the reference
+    silhouette, the parameters (ω, log-distance) and Adam. :meth:`step` runs one optimisation step
+    (what :func:`run_pose` loops over and ``benchmarks/bench_step.py`` times).
 
-    dist, tcn, label = instance_from_config(cfg)
-    R0 = torch.tensor(prob["R0"], dtype=torch.float32)
-    omega = torch.zeros(3, requires_grad=True)
-    log_d = torch.tensor(math.log(prob["d0"]), dtype=torch.float32, requires_grad=True)
-    opt = torch.optim.Adam([omega, log_d], lr=float(cfg["lr"]), betas=(0.5, 0.95))
-    steps = int(cfg["steps"])
+    ``config`` is merged over :data:`POSE_DEFAULTS`, then ``overrides``. ``backend_options`` go to
+    the renderer's backend (e.g. ``{"freeze": True}`` for ``backend="drjit"``); they are run-time
+    options, not part of the config (so results' config hashes do not change).
+    """
+
+    def __init__(self, config: dict | None = None, *, backend_options: dict | None = None, **overrides):
+        cfg = dict(POSE_DEFAULTS)
+        cfg.update(config or {})
+        cfg.update(overrides)
+        self.cfg = cfg
+        self.poses = poses = pose_problem(cfg)
+        self.size = size = int(cfg["image_size"])
+        mesh = load_target_mesh(cfg["target"])
+        self.verts = torch.tensor(mesh.vertices, dtype=torch.float32)
+        self.faces = torch.tensor(mesh.faces)
+        hard = gendr.Renderer("heaviside", "or", tau=1.0, image_size=size, backend=cfg["backend"], eps=0.0,
+                              blend=None)
+        with torch.no_grad():
+            self.ref = _render(hard, self.verts, self.faces, torch.tensor(poses["R_true"], dtype=torch.float32),
+                               poses["d_true"], poses["fov"])
+
+        self.dist, self.tcn, self.label = instance_from_config(cfg)
+        self.backend_options = backend_options or {}
+        self.renderer = None
+        self.R0 = torch.tensor(poses["R0"], dtype=torch.float32)
+        self.omega = torch.zeros(3, requires_grad=True)
+        self.log_d = torch.tensor(math.log(poses["d0"]), dtype=torch.float32, requires_grad=True)
+        self.opt = torch.optim.Adam([self.omega, self.log_d], lr=float(cfg["lr"]), betas=(0.5, 0.95))
+
+    def rotation(self) -> torch.Tensor:
+        """The current estimate R = exp([ω]×)·R₀."""
+        return axis_angle_to_matrix(self.omega) @ self.R0
+
+    def step(self, step_index: int, callback=None) -> float:
+        """One step at τ of ``step_index`` in the schedule: render, loss, backward, Adam. Returns the
+        loss, or NaN (and makes no update) when the loss or a gradient is not finite. ``callback``
+        as in :func:`run_pose`."""
+        cfg, steps = self.cfg, int(self.cfg["steps"])
+        tau = log_tau_schedule(step_index, steps, float(cfg["tau_start"]), float(cfg["tau_end"]))
+        renderer = make_renderer(self.dist, self.tcn, tau, self.size, backend=cfg["backend"], eps=float(cfg["eps"]),
+                                 **self.backend_options)
+        if self.renderer is not None:  # one backend object for every τ: its frozen recordings (freeze=True) serve all
+            renderer.backend = self.renderer.backend
+        self.renderer = renderer
+        R = self.rotation()
+        sil = _render(renderer, self.verts, self.faces, R, torch.exp(self.log_d), self.poses["fov"])
+        if cfg["loss"] == "mse":
+            loss = (sil - self.ref).pow(2).mean()
+        else:
+            loss = iou_loss_per_view(sil, self.ref).mean()
+        if not torch.isfinite(loss):
+            return float("nan")
+        self.opt.zero_grad()
+        loss.backward()
+        if not (torch.isfinite(self.omega.grad).all() and torch.isfinite(self.log_d.grad)):
+            return float("nan")
+        self.opt.step()
+        if callback is not None:
+            callback(step_index, sil.detach(), self.ref, float(loss.detach()))
+        return float(loss.detach())
+
+
+def run_pose(config: dict | None = None, *, callback=None, backend_options=None, **overrides) -> dict:
+    """Run one pose optimisation; returns ``metric`` (final angular error in degrees), ``success``,
+    ``initial_error``, ``distance_error`` (relative), ``seconds``, ... (see the module docstring).
+    ``backend_options``: see :class:`PoseProblem`."""
+    t0 = time.perf_counter()
+    prob = PoseProblem(config, backend_options=backend_options, **overrides)
+    poses = prob.poses
     nonfinite = False
     losses = []
-    for step in range(steps):
-        tau = log_tau_schedule(step, steps, float(cfg["tau_start"]), float(cfg["tau_end"]))
-        renderer = make_renderer(dist, tcn, tau, size, backend=cfg["backend"], eps=float(cfg["eps"]))
-        R = axis_angle_to_matrix(omega) @ R0
-        sil = _render(renderer, verts, faces, R, torch.exp(log_d), prob["fov"])
-        if cfg["loss"] == "mse":
-            loss = (sil - ref).pow(2).mean()
-        else:
-            loss = iou_loss_per_view(sil, ref).mean()
-        if not torch.isfinite(loss):
+    for step in range(int(prob.cfg["steps"])):
+        loss = prob.step(step, callback)
+        if math.isnan(loss):
             nonfinite = True
             break
-        opt.zero_grad()
-        loss.backward()
-        if not (torch.isfinite(omega.grad).all() and torch.isfinite(log_d.grad)):
-            nonfinite = True
-            break
-        opt.step()
-        losses.append(float(loss.detach()))
-        if callback is not None:
-            callback(step, sil.detach(), ref, float(loss.detach()))
+        losses.append(loss)
     with torch.no_grad():
-        R = axis_angle_to_matrix(omega) @ R0
-    err = rotation_angle_deg(R, prob["R_true"])
+        R = prob.rotation()
+    err = rotation_angle_deg(R, poses["R_true"])
     return {
         "metric": err,
         "metric_name": "angular_error_deg",
         "success": bool(err < SUCCESS_DEGREES),
-        "initial_error": rotation_angle_deg(prob["R0"], prob["R_true"]),
-        "distance_error": abs(float(torch.exp(log_d.detach())) - prob["d_true"]) / prob["d_true"],
+        "initial_error": rotation_angle_deg(poses["R0"], poses["R_true"]),
+        "distance_error": abs(float(torch.exp(prob.log_d.detach())) - poses["d_true"]) / poses["d_true"],
         "loss_first": losses[0] if losses else float("nan"),
         "loss_last": losses[-1] if losses else float("nan"),
         "steps_done": len(losses),
         "nonfinite": nonfinite,
-        "instance_label": label,
+        "instance_label": prob.label,
         "seconds": time.perf_counter() - t0,
     }

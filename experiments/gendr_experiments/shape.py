@@ -28,7 +28,7 @@ from gendr.scenes import icosphere
 from .common import (flatten_edges, flatten_loss, instance_from_config, laplacian_loss, load_target_mesh,
                      make_renderer, mesh_laplacian, renderer_tau, soft_iou_loss, iou_loss_per_view)
 
-__all__ = ["SHAPE_DEFAULTS", "run_shape", "SphereDeformer", "shape_cameras"]
+__all__ = ["SHAPE_DEFAULTS", "run_shape", "ShapeProblem", "SphereDeformer", "shape_cameras"]
 
 SHAPE_DEFAULTS = dict(
     experiment="shape",
@@ -86,54 +86,85 @@ def hard_silhouettes(vertices, faces, camera, image_size, backend="torch") -> to
         return r.render(vertices, faces, camera)[..., 3]
 
 
-def run_shape(config: dict | None = None, *, callback=None, **overrides) -> dict:
+class ShapeProblem:
+    """One shape optimisation, built once: target silhouettes, renderer, model, Laplacian, flatten
+    edges and Adam. :meth:`step` runs one optimisation step (what :func:`run_shape` loops over and
+    ``benchmarks/bench_step.py`` times).
+
+    ``config`` is merged over :data:`SHAPE_DEFAULTS`, then ``overrides``. ``backend_options`` go to
+    the renderer's backend (e.g. ``{"freeze": True}`` for ``backend="drjit"``); they are run-time
+    options, not part of the config (so results' config hashes do not change).
+    """
+
+    def __init__(self, config: dict | None = None, *, backend_options: dict | None = None, **overrides):
+        cfg = dict(SHAPE_DEFAULTS)
+        cfg.update(config or {})
+        cfg.update(overrides)
+        self.cfg = cfg
+        torch.manual_seed(int(cfg["seed"]))
+        self.size = size = int(cfg["image_size"])
+        self.camera = cam = shape_cameras(cfg)
+        target = load_target_mesh(cfg["target"])
+        tv = torch.tensor(target.vertices, dtype=torch.float32)
+        tf = torch.tensor(target.faces)
+        self.target_sil = hard_silhouettes(tv, tf, cam, size, cfg["backend"])
+
+        dist, tcn, self.label = instance_from_config(cfg)
+        self.tau = renderer_tau(cfg["tau"], dist.squared)
+        self.renderer = make_renderer(dist, tcn, self.tau, size, backend=cfg["backend"], eps=float(cfg["eps"]),
+                                      **(backend_options or {}))
+        self.model = model = SphereDeformer(int(cfg["subdivisions"]))
+        self.L = mesh_laplacian(model.base.shape[0], model.faces_np)
+        self.fedges = flatten_edges(model.faces_np)
+        self.opt = torch.optim.Adam(model.parameters(), lr=float(cfg["lr"]), betas=(0.5, 0.95))
+
+    def hard_iou_loss(self):
+        """``(vertices, hard IoU loss)`` of the current mesh (heaviside + or; per view, averaged)."""
+        with torch.no_grad():
+            v = self.model()
+        sil = hard_silhouettes(v, self.model.faces, self.camera, self.size, self.cfg["backend"])
+        return v, float(iou_loss_per_view(sil, self.target_sil).mean())
+
+    def step(self, step_index: int, callback=None) -> float:
+        """One step: render, loss, backward, Adam. Returns the soft IoU loss, or NaN (and makes no
+        update) when the total loss is not finite. ``callback`` as in :func:`run_shape`."""
+        cfg, model = self.cfg, self.model
+        v = model()
+        sil = self.renderer.render(v, model.faces, self.camera)[..., 3]
+        iou = soft_iou_loss(sil, self.target_sil)
+        loss = (iou + cfg["lambda_lap"] * laplacian_loss(v, self.L)
+                + cfg["lambda_flat"] * flatten_loss(v, self.fedges))
+        if not torch.isfinite(loss):
+            return float("nan")
+        self.opt.zero_grad()
+        loss.backward()
+        self.opt.step()
+        if callback is not None:
+            callback(step_index, v.detach(), sil.detach(), float(loss.detach()))
+        return float(iou.detach())
+
+
+def run_shape(config: dict | None = None, *, callback=None, backend_options=None, **overrides) -> dict:
     """Run one shape optimisation. ``config`` (merged over :data:`SHAPE_DEFAULTS`, then ``overrides``).
 
     ``callback(step, vertices, silhouettes, loss)`` is called every step (e.g. to record a GIF).
+    ``backend_options``: see :class:`ShapeProblem`.
     Returns a dict: ``metric`` (final hard IoU loss, lower is better), ``soft_loss_first``,
     ``soft_loss_last``, ``hard_iou_loss_initial``, ``seconds``, ``vertices`` is *not* included
     (pass a callback to get the mesh).
     """
-    cfg = dict(SHAPE_DEFAULTS)
-    cfg.update(config or {})
-    cfg.update(overrides)
-    torch.manual_seed(int(cfg["seed"]))
     t0 = time.perf_counter()
-    size = int(cfg["image_size"])
-    cam = shape_cameras(cfg)
-    target = load_target_mesh(cfg["target"])
-    tv = torch.tensor(target.vertices, dtype=torch.float32)
-    tf = torch.tensor(target.faces)
-    target_sil = hard_silhouettes(tv, tf, cam, size, cfg["backend"])
-
-    dist, tcn, label = instance_from_config(cfg)
-    tau = renderer_tau(cfg["tau"], dist.squared)
-    renderer = make_renderer(dist, tcn, tau, size, backend=cfg["backend"], eps=float(cfg["eps"]))
-    model = SphereDeformer(int(cfg["subdivisions"]))
-    L = mesh_laplacian(model.base.shape[0], model.faces_np)
-    fedges = flatten_edges(model.faces_np)
-    opt = torch.optim.Adam(model.parameters(), lr=float(cfg["lr"]), betas=(0.5, 0.95))
-    hard0 = float(iou_loss_per_view(hard_silhouettes(model().detach(), model.faces, cam, size, cfg["backend"]),
-                                    target_sil).mean())
+    prob = ShapeProblem(config, backend_options=backend_options, **overrides)
+    _, hard0 = prob.hard_iou_loss()
     losses = []
     nonfinite = False
-    for step in range(int(cfg["steps"])):
-        v = model()
-        sil = renderer.render(v, model.faces, cam)[..., 3]
-        iou = soft_iou_loss(sil, target_sil)
-        loss = iou + cfg["lambda_lap"] * laplacian_loss(v, L) + cfg["lambda_flat"] * flatten_loss(v, fedges)
-        if not torch.isfinite(loss):
+    for step in range(int(prob.cfg["steps"])):
+        iou = prob.step(step, callback)
+        if math.isnan(iou):
             nonfinite = True
             break
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        losses.append(float(iou.detach()))
-        if callback is not None:
-            callback(step, v.detach(), sil.detach(), float(loss.detach()))
-    with torch.no_grad():
-        v = model()
-    hard = float(iou_loss_per_view(hard_silhouettes(v, model.faces, cam, size, cfg["backend"]), target_sil).mean())
+        losses.append(iou)
+    v, hard = prob.hard_iou_loss()
     if nonfinite or not math.isfinite(hard):
         hard = float("nan")
     return {
@@ -144,9 +175,9 @@ def run_shape(config: dict | None = None, *, callback=None, **overrides) -> dict
         "soft_loss_last": losses[-1] if losses else float("nan"),
         "steps_done": len(losses),
         "nonfinite": nonfinite,
-        "instance_label": label,
-        "renderer_tau": tau,
+        "instance_label": prob.label,
+        "renderer_tau": prob.tau,
         "seconds": time.perf_counter() - t0,
         "final_vertices": v.numpy(),
-        "faces": model.faces_np,
+        "faces": prob.model.faces_np,
     }
