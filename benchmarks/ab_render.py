@@ -1,0 +1,84 @@
+"""Interleaved A/B timing of two versions of gendr on a machine whose speed drifts.
+
+Prints one line: which version ran (the path of the imported ``gendr_drjit``) and median times.
+Run it alternately against an older checkout (a git worktree put first on ``PYTHONPATH``) and the
+current one, in one sitting:
+
+    git worktree add /tmp/wt-old 02f31c3
+    for i in 1 2 3; do
+      PYTHONPATH=/tmp/wt-old:/tmp/wt-old/backends:/tmp/wt-old/experiments .venv/bin/python benchmarks/ab_render.py render 256 3 20
+      .venv/bin/python benchmarks/ab_render.py render 256 3 20
+    done
+
+``render SIZE SUBDIVISIONS REPEATS``: the Dr.Jit render of bench_render.py (icosphere, logistic +
+probabilistic, τ = 0.01, eps = 1e-4, alpha only, 2 threads): medians of forward and forward+backward.
+``shape STEPS``: the paper's shape step (24 views at 64², 1,280-face template, drjit) through
+``gendr_experiments.shape.run_shape``: median wall time of a step after two warm-up steps.
+"""
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy as np
+import drjit as dr
+
+import gendr
+import gendr_drjit
+
+
+def render_case(size, subdivisions, repeats):
+    from drjit.llvm.ad import TensorXf
+    from gendr.scenes import icosphere
+    mesh = icosphere(subdivisions)
+    verts, faces = TensorXf(mesh.vertices.astype(np.float32)), mesh.faces
+    cam = gendr.PerspectiveCamera(eye=(0.0, 0.0, 3.0), fov_y=60.0)
+    r = gendr.Renderer("logistic", "probabilistic", tau=0.01, image_size=size, eps=1e-4, blend=None,
+                       backend="drjit", device="llvm")
+
+    def fwd():
+        dr.eval(r.render(verts, faces, cam))
+        dr.sync_thread()
+
+    def fwd_bwd():
+        v = TensorXf(verts)
+        dr.enable_grad(v)
+        dr.backward(dr.sum(r.render(v, faces, cam)[..., 3].array))
+        dr.eval(dr.grad(v))
+        dr.sync_thread()
+
+    return {name: _median_ms(fn, repeats) for name, fn in (("fwd_ms", fwd), ("fwd_bwd_ms", fwd_bwd))}
+
+
+def _median_ms(fn, repeats):
+    fn()
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return round(1000.0 * float(np.median(times)), 2)
+
+
+def shape_case(steps):
+    import torch
+    from gendr_experiments.shape import run_shape
+    torch.set_num_threads(2)
+    stamps = []
+    run_shape(dict(target="airplane", subdivisions=3, image_size=64, views=24, distance=2.732, fov_y=30.0,
+                   lr=10 ** -1.5, steps=steps, backend="drjit", tau=0.01),
+              callback=lambda *a: stamps.append(time.perf_counter()))
+    return {"step_ms": round(1000.0 * float(np.median(np.diff(stamps[2:]))), 1)}
+
+
+def main(argv):
+    dr.set_thread_count(2)
+    if argv[0] == "render":
+        out = render_case(int(argv[1]), int(argv[2]), int(argv[3]))
+    else:
+        out = shape_case(int(argv[1]))
+    print(gendr_drjit.__file__, out)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
