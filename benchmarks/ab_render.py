@@ -25,6 +25,7 @@ import drjit as dr
 
 import gendr
 import gendr_drjit
+from bench_render import measure  # (benchmarks/ is the script's directory: first on sys.path)
 
 
 def render_case(size, subdivisions, repeats):
@@ -51,13 +52,7 @@ def render_case(size, subdivisions, repeats):
 
 
 def _median_ms(fn, repeats):
-    fn()
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return round(1000.0 * float(np.median(times)), 2)
+    return round(1000.0 * float(np.median(measure(fn, repeats))), 2)
 
 
 def shape_case(steps):

@@ -431,49 +431,12 @@ def distance_parts(fc, T, f, px, py, track):
     dependence, as in the torch backend's analytic backward, with 4 differentiable reads per pair
     instead of AD through every edge.
     """
-    K, Float = fc.K, T.Float
-    Xs = [dr.gather(Float, x, f) for x in fc.Xd]
-    Ys = [dr.gather(Float, y, f) for y in fc.Yd]
-    orient = dr.gather(Float, fc.orient, f)
-    d2 = emin = None
-    for k in range(K):
-        Px, Py = Xs[k], Ys[k]
-        Ex, Ey = Xs[(k + 1) % K] - Px, Ys[(k + 1) % K] - Py
-        len2 = Ex * Ex + Ey * Ey
-        nonzero = len2 > 0.0
-        len2s = dr.select(nonzero, len2, 1.0)
-        il = dr.select(nonzero, 1.0 / len2s, 0.0)
-        inv_len = dr.select(nonzero, dr.rsqrt(len2s), 0.0) * orient
-        nx, ny = -Ey * inv_len, Ex * inv_len
-        c = dr.select(orient == 0.0, -1.0, dr.select(nonzero, 0.0, T.big))
-        dx, dy = px - Px, py - Py
-        t = dr.clip((dx * Ex + dy * Ey) * il, 0.0, 1.0)
-        qx, qy = dx - t * Ex, dy - t * Ey
-        dk = qx * qx + qy * qy
-        ek = dx * nx + dy * ny + c
-        if d2 is None:
-            d2, emin = dk, ek
-            if track:
-                kd = ke = dr.zeros(T.UInt32, 1)
-                td = te = t
-                qxb, qyb, nxb, nyb = qx, qy, nx, ny
-        else:
-            if track:
-                bd, be = dk < d2, ek < emin
-                kd, td = dr.select(bd, k, kd), dr.select(bd, t, td)
-                qxb, qyb = dr.select(bd, qx, qxb), dr.select(bd, qy, qyb)
-                ke, te = dr.select(be, k, ke), dr.select(be, t, te)
-                nxb, nyb = dr.select(be, nx, nxb), dr.select(be, ny, nyb)
-            d2, emin = dr.minimum(d2, dk), dr.minimum(emin, ek)
-    inside = emin >= 0.0
-    r = dr.sqrt(dr.select(inside, 1.0, dr.maximum(d2, T.tiny)))
-    d = dr.select(inside, emin, -r)
+    d, parts = _strip_pixel(T, _edge_setup(fc, T, f, px), py, track)
+    inside = d >= 0.0  # (outside, d = −max(r, sqrt(tiny)) < 0)
     if not track:
         return d, inside, None
-    kk = dr.select(inside, ke, kd)
-    tt = dr.select(inside, te, td)
-    ux = dr.select(inside, -nxb, qxb / r)
-    uy = dr.select(inside, -nyb, qyb / r)
+    kk, tt, ux, uy = parts
+    K = fc.K
     i0 = f * K + kk
     i1 = f * K + dr.select(kk + 1 == K, 0, kk + 1)
     # pairs beyond the culling radius have coverage < eps (zero gradient): masked reads, so the
@@ -566,9 +529,9 @@ def _edge_setup(fc, T, f, px):
 
 
 def _strip_pixel(T, edges, py, track):
-    """Signed distance (inside > 0) of one pixel of the strip to the face of ``edges`` (see
-    distance_parts, which this equals up to rounding), and with ``track`` the nearest edge's
-    (k, t, ux, uy): the signed distance moves by (1 − t)·u·δP_k + t·u·δP_{k+1}."""
+    """Signed distance (inside > 0) of one pixel of the strip to the face of ``edges`` (the distance
+    to the nearest edge line inside, to the nearest boundary point outside), and with ``track`` the
+    nearest edge's (k, t, ux, uy): the signed distance moves by (1 − t)·u·δP_k + t·u·δP_{k+1}."""
     d2 = emin = None
     for k, (Py, Ex, Ey, nx, ny, c, il, dx, dxnx, dxEx) in enumerate(edges):
         # evaluated in the same order as distance_parts (and the torch backend): the same rounding
