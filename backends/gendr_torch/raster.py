@@ -366,13 +366,13 @@ def signed_distance(g, K, blk, track=False):
     d2 = emin = None
     for k in range(K):
         Px, Py, Ex, Ey, il, nx, ny, c = g[:, 8 * k: 8 * k + 8, None].unbind(1)  # [R, 1] each
-        # the terms in py are per row; the rounding is that of the textbook formulas (Dr.Jit's too)
+        # rounded as the textbook formulas (and Dr.Jit) do: no fused multiply-adds (addcmul is
+        # one), since ties between edges at kinks must break alike; the terms in py are per row
         dx, dy = px - Px, blk.py - Py
-        t = torch.addcmul(dy * Ey, dx, Ex).mul_(il).clamp_(0.0, 1.0)
-        qx = torch.addcmul(dx, t, Ex, value=-1.0)
-        qy = torch.addcmul(dy, t, Ey, value=-1.0)
-        dk = torch.mul(qx, qx).addcmul_(qy, qy)
-        ek = torch.addcmul(dy * ny + c, dx, nx)
+        t = (dx * Ex).add_(dy * Ey).mul_(il).clamp_(0.0, 1.0)
+        qx, qy = dx - t * Ex, dy - t * Ey
+        dk = (qx * qx).add_(qy * qy)
+        ek = (dx * nx).add_(dy * ny + c)  # c is 0, or decides alone
         if d2 is None:
             d2, emin = dk, ek
             if track:
