@@ -382,16 +382,18 @@ def signed_distance(g, K, blk, track=False):
         ek = (dx * nx).add_(dy * ny + c)  # c is 0, or decides alone
         if d2 is None:
             d2, emin = dk, ek
-            if track:
-                kd = ke = torch.zeros_like(dk)
-                td = te = t
-                qxb, qyb, nxb, nyb = qx, qy, nx, ny
+            if track:  # no autograd here: updated in place
+                kd, ke = torch.zeros_like(dk), torch.zeros_like(dk)
+                td, te = t, t.clone()
+                qxb, qyb, nxb, nyb = qx, qy, nx.expand_as(dk).clone(), ny.expand_as(dk).clone()
         else:
             if track:  # the first edge attaining the minimum, as torch.minimum's ties resolve
                 bd, be = _below(dk, d2), _below(ek, emin)
                 kk = dk.new_full((), k)
-                kd, td, qxb, qyb = (torch.lerp(a, b, bd) for a, b in ((kd, kk), (td, t), (qxb, qx), (qyb, qy)))
-                ke, te, nxb, nyb = (torch.lerp(a, b, be) for a, b in ((ke, kk), (te, t), (nxb, nx), (nyb, ny)))
+                for a, b in ((kd, kk), (td, t), (qxb, qx), (qyb, qy)):
+                    a.lerp_(b, bd)
+                for a, b in ((ke, kk), (te, t), (nxb, nx), (nyb, ny)):
+                    a.lerp_(b, be)
             d2, emin = torch.minimum(d2, dk), torch.minimum(emin, ek)
     inside = 1.0 - _below(emin, 0.0)
     # inside a convex polygon the distance to the boundary is the distance to the nearest edge line
