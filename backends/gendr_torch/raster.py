@@ -412,7 +412,7 @@ def _generator_terms(dist, tcn, x, eps):
     p, log1m = dist.cdf_and_log_sf(ops, x)
     g = tcn.generator(ops, p, log1m)
     if bool(torch.isfinite(log1m.detach().sum() + g.detach().sum())):  # the usual case: nothing saturated
-        return (torch.where(p >= eps, g, 0.0) if eps > 0 else g), None
+        return (g * (1.0 - _below(p.detach(), eps)) if eps > 0 else g), None  # g is finite here
     sat = ~torch.isfinite(log1m)
     g = tcn.generator(ops, torch.where(sat, 0.5, p), torch.where(sat, math.log(0.5), log1m))
     over = ~torch.isfinite(g)
@@ -510,9 +510,14 @@ class SoftAlpha(torch.autograd.Function):
         def scatter(blk, gd, k, t, ux, uy):
             gb = gd * t
             ga = gd - gb
-            idx = (blk.face[:, None].int() * K + k.int()).reshape(-1)
-            for i, v in enumerate((ga * ux, ga * uy, gb * ux, gb * uy)):  # 1-D index_add: ~20x faster than 2-D
-                gP[i].index_add_(0, idx, v.reshape(-1))
+            parts = (ga * ux, ga * uy, gb * ux, gb * uy)
+            # sums over each row's pixels per nearest edge, then per face: index_add per pair is
+            # slow where neighbouring pairs hit the same face and edge
+            for e in range(K):
+                m = (k - e).abs_().clamp_(max=1.0).neg_().add_(1.0)  # 1.0 where k == e
+                idx = blk.face * K + e
+                for i, v in enumerate(parts):
+                    gP[i].index_add_(0, idx, (v * m).sum(1))
 
         if tcn.kind == ARCHIMEDEAN:
             with torch.enable_grad():  # dL/dS = dL/dA · dA/dS, per pixel
