@@ -1,13 +1,15 @@
 """The PyTorch rasterizer: faces -> (pixel, face) pairs -> per-pixel aggregates (DESIGN.md §5).
 
 Never materialises B·H·W·F. Per face we build a screen-space bounding box grown by the culling
-distance of the distribution (coverage < eps beyond it), enumerate the pixels of each box directly,
-and process the pairs in row bands of at most ``max_pairs`` pairs (memory O(pixels + faces +
-max_pairs)). Alpha is one autograd Function (:class:`SoftAlpha`): its backward recomputes each band
-and applies the analytic derivative of the distance, with the coverage/generator derivative from
-local autograd on the spec formulas, so nothing per pair is stored. The RGB blends are plain
-autograd per band, checkpointed when there are several bands. Gradients are exact w.r.t.
-everything upstream (vertices, camera, τ, colours).
+distance of the distribution (coverage < eps beyond it) and enumerate the rows of each box. Rows
+are evaluated as [rows, width] blocks of at most ``max_pairs`` pairs (memory O(pixels + faces +
+max_pairs)), per-face and per-row data broadcasting along the row. Alpha is one autograd Function
+(:class:`SoftAlpha`): its backward recomputes each block and applies the analytic derivative of the
+distance, with the coverage/generator derivative from local autograd on the spec formulas, so
+nothing per pair is stored. Max-type aggregates and the RGB blends work on bands of image rows
+(every pair of a pixel in one block); the blends are plain autograd per band, checkpointed when
+there are several bands. Gradients are exact w.r.t. everything upstream (vertices, camera, τ,
+colours).
 """
 from __future__ import annotations
 
