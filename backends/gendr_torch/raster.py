@@ -1,13 +1,15 @@
 """The PyTorch rasterizer: faces -> (pixel, face) pairs -> per-pixel aggregates (DESIGN.md §5).
 
 Never materialises B·H·W·F. Per face we build a screen-space bounding box grown by the culling
-distance of the distribution (coverage < eps beyond it), enumerate the pixels of each box directly,
-and process the pairs in row bands of at most ``max_pairs`` pairs (memory O(pixels + faces +
-max_pairs)). Alpha is one autograd Function (:class:`SoftAlpha`): its backward recomputes each band
-and applies the analytic derivative of the distance, with the coverage/generator derivative from
-local autograd on the spec formulas, so nothing per pair is stored. The RGB blends are plain
-autograd per band, checkpointed when there are several bands. Gradients are exact w.r.t.
-everything upstream (vertices, camera, τ, colours).
+distance of the distribution (coverage < eps beyond it) and enumerate the rows of each box. Rows
+are evaluated as [rows, width] blocks of at most ``max_pairs`` pairs (memory O(pixels + faces +
+max_pairs)), per-face and per-row data broadcasting along the row. Alpha is one autograd Function
+(:class:`SoftAlpha`): its backward recomputes each block and applies the analytic derivative of the
+distance, with the coverage/generator derivative from local autograd on the spec formulas, so
+nothing per pair is stored. Max-type aggregates and the RGB blends work on bands of image rows
+(every pair of a pixel in one block); the blends are plain autograd per band, checkpointed when
+there are several bands. Gradients are exact w.r.t. everything upstream (vertices, camera, τ,
+colours).
 """
 from __future__ import annotations
 
@@ -138,7 +140,7 @@ def prepare_faces(settings, camera, verts, faces, colors, per_face) -> Faces:
 
 
 def edge_table(X, Y):
-    """Per-edge data of polygons with corners (X, Y) [N, K]: [8K, N] rows (edge k, field) with
+    """Per-edge data of polygons with corners (X, Y) [N, K]: [N, 8K], columns (edge k, field) with
     fields Px, Py, Ex, Ey, 1/|E|², nx, ny, c (inward unit normal n, offset c, see signed_distance)."""
     N, K = X.shape
     Ex, Ey = X.roll(-1, 1) - X, Y.roll(-1, 1) - Y
@@ -154,7 +156,7 @@ def edge_table(X, Y):
     big = torch.finfo(X.dtype).max / 4
     c = torch.where(nonzero, torch.zeros_like(len2), torch.full_like(len2, big))
     c = torch.where((orient == 0)[:, None], torch.full_like(c, -1.0), c)
-    return torch.stack([X, Y, Ex, Ey, inv_len2, nx, ny, c], 0).permute(2, 0, 1).reshape(8 * K, N)
+    return torch.stack([X, Y, Ex, Ey, inv_len2, nx, ny, c], -1).reshape(N, 8 * K)
 
 
 def _shading_data(settings, camera, P, H, W, verts, faces, tri, colors, per_face, B):
@@ -234,86 +236,68 @@ def pixel_ranges(fc: Faces, H: int, W: int, radius: float):
     return i0, i1, j0, torch.maximum(j1, j0 - 1)
 
 
-def row_bands(i0, i1, widths, H: int, max_pairs: int):
-    """Split rows [0, H) into consecutive bands of at most ~max_pairs pairs each."""
-    n = (i1 - i0 + 1).clamp(min=0)
-    w = torch.where(n > 0, widths, torch.zeros_like(widths))
-    w = w.long()
-    diff = torch.zeros(H + 1, dtype=torch.int64, device=i0.device)
-    diff.index_add_(0, i0.clamp(max=H).long(), w)
-    diff.index_add_(0, (i1 + 1).clamp(min=0, max=H).long(), -w)
-    per_row = diff[:H].cumsum(0).cpu().tolist()
-    bands, start, acc = [], 0, 0
-    for r, c in enumerate(per_row):
-        if acc and acc + c > max_pairs:
-            bands.append((start, r))
-            start, acc = r, 0
-        acc += c
-    bands.append((start, H))
-    return bands
+def face_rows(i0, i1):
+    """(face, image row) of every row of every face box, face-major ([R] int64 each)."""
+    h = (i1 - i0 + 1).clamp(min=0).long()
+    face = torch.repeat_interleave(torch.arange(h.numel(), device=h.device), h)
+    start = torch.repeat_interleave(h.cumsum(0) - h, h)
+    return face, i0.long()[face] + torch.arange(face.numel(), device=h.device) - start
 
 
-def enumerate_pairs(i0, i1, j0, j1, r0: int, r1: int):
-    """(face, row, col) of every pixel of every face box within rows [r0, r1)."""
-    a, b = i0.clamp(min=r0), i1.clamp(max=r1 - 1)
-    h = (b - a + 1).clamp(min=0)
-    w = (j1 - j0 + 1).clamp(min=0)
-    counts = h * w
-    face = torch.repeat_interleave(torch.arange(counts.numel(), dtype=torch.int32, device=counts.device), counts)
-    if face.numel() == 0:
-        return face, face, face
-    start = (counts.cumsum(0) - counts).int()
-    local = torch.arange(face.numel(), dtype=torch.int32, device=face.device) - start[face]
-    wf = w[face]
-    return face, a[face] + local // wf, j0[face] + local % wf
+def _chunks(widths, max_pairs: int):
+    """Cut rows sorted by width (ascending) into consecutive chunks of at most max_pairs padded
+    pairs (rows × the chunk's largest width; one row at least): [(start, end)]."""
+    w = widths.tolist()
+    out, a, R = [], 0, len(w)
+    while a < R:
+        lo, hi = a + 1, R  # the largest end with (end - a) * w[end - 1] <= max_pairs
+        while lo < hi:
+            mid = (lo + hi + 1) // 2
+            if (mid - a) * w[mid - 1] <= max_pairs:
+                lo = mid
+            else:
+                hi = mid - 1
+        out.append((a, lo))
+        a = lo
+    return out
 
 
-# ---------------------------------------------------------------------------------------------
-# per-pair evaluation of one band
-# ---------------------------------------------------------------------------------------------
-def signed_distance(geom_pairs, K, px, py, track=False):
-    """Signed distance (inside > 0) of pixel centres to their face polygons, [N].
+@dataclass
+class Block:
+    """Face rows evaluated together as [R, width] pixels: row r covers columns j0 ... j0 + width − 1
+    (j0: its face box's first column) of image row row[r] of the face's image. Columns beyond the
+    box are farther than the culling distance (exact zeros, like the box's own corners); those
+    beyond the image land in the padding columns of a wider output (see Plan.Wc). A pixel's values
+    do not depend on the block it is evaluated in (same results for any max_pairs)."""
 
-    With ``track``, also returns what the analytic backward needs: the nearest edge k, the
-    position t in [0, 1] of the nearest boundary point on it, and the unit vector (ux, uy) with
-    ∂d/∂P_k = (1 − t)·u and ∂d/∂P_{k+1} = t·u.
-    """
-    d2 = emin = None
-    for k in range(K):
-        Px, Py, Ex, Ey, il, nx, ny, c = geom_pairs[8 * k: 8 * k + 8]
-        dx, dy = px - Px, py - Py
-        t = torch.clamp((dx * Ex + dy * Ey) * il, 0.0, 1.0)
-        qx, qy = dx - t * Ex, dy - t * Ey
-        dk = qx * qx + qy * qy
-        ek = dx * nx + dy * ny + c
-        if d2 is None:
-            d2, emin = dk, ek
-            if track:
-                kd, ke, td, te = (torch.zeros_like(px, dtype=torch.int8), torch.zeros_like(px, dtype=torch.int8), t, t)
-                qxb, qyb, nxb, nyb = qx, qy, nx, ny
-        else:
-            if track:
-                bd, be = dk < d2, ek < emin
-                kd, td = torch.where(bd, k, kd).to(torch.int8), torch.where(bd, t, td)
-                qxb, qyb = torch.where(bd, qx, qxb), torch.where(bd, qy, qyb)
-                ke, te = torch.where(be, k, ke).to(torch.int8), torch.where(be, t, te)
-                nxb, nyb = torch.where(be, nx, nxb), torch.where(be, ny, nyb)
-            d2, emin = torch.minimum(d2, dk), torch.minimum(emin, ek)
-    inside = emin >= 0
-    tiny = torch.finfo(px.dtype).tiny
-    r = torch.sqrt(torch.where(inside, torch.ones_like(d2), torch.clamp(d2, min=tiny)))
-    # inside a convex polygon the distance to the boundary is the distance to the nearest edge line
-    d = torch.where(inside, emin, -r)
-    if not track:
-        return d, inside
-    # inside: d = n·(p − P_k) => ∂d/∂P_k = −(1 − t)n ; outside: d = −|p − q| => ∂d/∂P_k = (1 − t)(p − q)/|p − q|
-    ux, uy = torch.where(inside, -nxb, qxb / r), torch.where(inside, -nyb, qyb / r)
-    return d, inside, torch.where(inside, ke, kd).long(), torch.where(inside, te, td), ux, uy
+    face: torch.Tensor  # [R] int64, index into B·F
+    pix0: torch.Tensor  # [R, 1] int32: output index of the row's first pixel
+    xnum: torch.Tensor  # [R, 1] H × screen X of the row's first pixel (an integer)
+    py: torch.Tensor  # [R, 1] screen Y of the row
+    cnum: torch.Tensor  # [1, width] H × screen X offsets of the columns (even integers)
+    H: int
+
+    @property
+    def width(self):
+        return self.cnum.shape[1]
+
+    def px(self):
+        """Screen X [R, width], rounded exactly as (2j + 1 − W)/H."""
+        return (self.xnum + self.cnum).div_(self.H)
+
+    def pix(self):
+        return self.pix0 + torch.arange(self.width, dtype=torch.int32, device=self.pix0.device)
+
+    def flat(self):
+        """Per-pair (face, pix, px, py), [R·width] each."""
+        shape = (self.face.numel(), self.width)
+        return (self.face[:, None].expand(shape).reshape(-1), self.pix().reshape(-1),
+                self.px().reshape(-1), self.py.expand(shape).reshape(-1))
 
 
 @dataclass
 class Plan:
-    """What a render enumerates: per-face pixel ranges and the row bands."""
+    """What a render enumerates: per-face pixel ranges (inclusive) and their rows."""
 
     settings: object
     fc: Faces
@@ -321,41 +305,140 @@ class Plan:
     i1: torch.Tensor
     j0: torch.Tensor
     j1: torch.Tensor
-    bands: list
 
-    def pairs(self, r0, r1):
-        """(face, pixel-in-band, px, py) of every candidate pair in rows [r0, r1)."""
+    def __post_init__(self):
+        self.face, self.row = face_rows(self.i0, self.i1)
+        self.rwidth = (self.j1 - self.j0 + 1).long()[self.face]
+        # outputs are computed W + padding columns wide, cropped to W at the end
+        self.Wc = self.settings.image_size[1] + (int(self.rwidth.max()) if self.rwidth.numel() else 0)
+        self._chunks = self._bands = None
+
+    def block(self, sel, r0=0, nrows=None):
+        """The Block of rows ``sel``; output pixels indexed in [B, nrows, Wc] from image row r0."""
         H, W = self.settings.image_size
-        face, row, col = enumerate_pairs(self.i0, self.i1, self.j0, self.j1, r0, r1)
-        pix = ((face // self.fc.F) * (r1 - r0) + (row - r0)) * W + col
-        dtype = self.fc.X.dtype
-        return face, pix, (2 * col + 1 - W).to(dtype) / H, 1 - (2 * row + 1).to(dtype) / H
+        nrows = H if nrows is None else nrows
+        face, row = self.face[sel], self.row[sel]
+        width = int(self.rwidth[sel].max())
+        col0 = self.j0.long()[face]
+        dtype, device = self.fc.X.dtype, face.device
+        pix0 = (((face // self.fc.F) * nrows + row - r0) * self.Wc + col0).int()[:, None]
+        xnum = (2 * col0 + 1 - W).to(dtype)[:, None]
+        py = (1 - (2 * row + 1).to(dtype) / H)[:, None]
+        cnum = torch.arange(0, 2 * width, 2, dtype=dtype, device=device)[None]
+        return Block(face, pix0, xnum, py, cnum, H)
+
+    def chunks(self):
+        """Blocks covering every row, in any order (for sums): rows of similar width together."""
+        if self._chunks is None:
+            order = torch.argsort(self.rwidth, stable=True)
+            self._chunks = [self.block(order[a:b]) for a, b in _chunks(self.rwidth[order], self.settings.max_pairs)]
+        return self._chunks
+
+    def bands(self):
+        """[(r0, r1, Block or None)]: bands of image rows covering [0, H), each Block holding all
+        rows of its pixels (for per-pixel maxima and blends)."""
+        if self._bands is None:
+            H, max_pairs = self.settings.image_size[0], self.settings.max_pairs
+            order = torch.argsort(self.row, stable=True)
+            count = torch.bincount(self.row, minlength=H).tolist()
+            wmax = torch.zeros(H, dtype=torch.int64, device=self.row.device).scatter_reduce_(0, self.row, self.rwidth, "amax").tolist()
+            cuts, r0, a, n, w = [], 0, 0, 0, 0  # band [r0, r): rows a ... a + n − 1 (in order), widest w
+            for r in range(H):
+                if n and (n + count[r]) * max(w, wmax[r]) > max_pairs:
+                    cuts.append((r0, r, a, n))
+                    r0, a, n, w = r, a + n, 0, 0
+                n, w = n + count[r], max(w, wmax[r])
+            cuts.append((r0, H, a, n))
+            self._bands = [(r0, r1, self.block(order[a:a + n], r0, r1 - r0) if n else None) for r0, r1, a, n in cuts]
+        return self._bands
+
+
+# ---------------------------------------------------------------------------------------------
+# per-pair evaluation of one block
+# ---------------------------------------------------------------------------------------------
+def _below(a, b):
+    """1.0 where a < b, else 0.0 (finite a, b). Arithmetic instead of a bool mask and torch.where,
+    which are ~5x slower per element on CPU; selections are then torch.lerp with weights 0 or 1
+    (exact: lerp returns start at weight 0 and end at weight 1)."""
+    return (b - a).sign_().clamp_(min=0.0)
+
+
+def signed_distance(g, K, blk, track=False):
+    """Signed distance (inside > 0, outside < 0) of the block's pixel centres to their face
+    polygons, [R, width] (g: the faces' edge_table rows, [R, 8K]).
+
+    With ``track``, also returns what the analytic backward needs: the nearest edge k (as a float),
+    the position t in [0, 1] of the nearest boundary point on it, and the unit vector (ux, uy) with
+    ∂d/∂P_k = (1 − t)·u and ∂d/∂P_{k+1} = t·u.
+    """
+    px = blk.px()
+    d2 = emin = None
+    for k in range(K):
+        Px, Py, Ex, Ey, il, nx, ny, c = g[:, 8 * k: 8 * k + 8, None].unbind(1)  # [R, 1] each
+        # rounded as the textbook formulas (and Dr.Jit) do: no fused multiply-adds (addcmul is
+        # one), since ties between edges at kinks must break alike; the terms in py are per row
+        dx, dy = px - Px, blk.py - Py
+        t = (dx * Ex).add_(dy * Ey).mul_(il).clamp_(0.0, 1.0)
+        qx, qy = dx - t * Ex, dy - t * Ey
+        dk = (qx * qx).add_(qy * qy)
+        ek = (dx * nx).add_(dy * ny + c)  # c is 0, or decides alone
+        if d2 is None:
+            d2, emin = dk, ek
+            if track:  # no autograd here: updated in place
+                kd, ke = torch.zeros_like(dk), torch.zeros_like(dk)
+                td, te = t, t.clone()
+                qxb, qyb, nxb, nyb = qx, qy, nx.expand_as(dk).clone(), ny.expand_as(dk).clone()
+        else:
+            if track:  # the first edge attaining the minimum, as torch.minimum's ties resolve
+                bd, be = _below(dk, d2), _below(ek, emin)
+                kk = dk.new_full((), k)
+                for a, b in ((kd, kk), (td, t), (qxb, qx), (qyb, qy)):
+                    a.lerp_(b, bd)
+                for a, b in ((ke, kk), (te, t), (nxb, nx), (nyb, ny)):
+                    a.lerp_(b, be)
+            d2, emin = torch.minimum(d2, dk), torch.minimum(emin, ek)
+    inside = 1.0 - _below(emin, 0.0)
+    # inside a convex polygon the distance to the boundary is the distance to the nearest edge line
+    r = d2.clamp_(min=torch.finfo(d2.dtype).tiny).sqrt_()
+    d = torch.lerp(-r, emin, inside)
+    if not track:
+        return d
+    # inside: d = n·(p − P_k) => ∂d/∂P_k = −(1 − t)n ; outside: d = −|p − q| => ∂d/∂P_k = (1 − t)(p − q)/|p − q|
+    ux, uy = torch.lerp(qxb / r, -nxb, inside), torch.lerp(qyb / r, -nyb, inside)
+    return d, torch.lerp(kd, ke, inside), torch.lerp(td, te, inside), ux, uy
 
 
 def _generator_terms(dist, tcn, x, eps, x_cut=None):
     """Per-pair generator values g(p) (0 where saturated, or culled: coverage < eps, tested as
-    x < F⁻¹(eps) like the Dr.Jit backend, where F itself may go unevaluated) and the mask of
-    saturated pairs (p = 1, or g overflowed), which set their pixel's alpha to 1. ``x_cut``: pairs
-    with x <= x_cut are dropped too (the reference cut-off, RenderSettings.cutoff_argument)."""
+    x < F⁻¹(eps) like the Dr.Jit backend; and with ``x_cut``, x <= x_cut, the reference cut-off of
+    RenderSettings.cutoff_argument) and the mask of saturated pairs (p = 1, or g overflowed), which
+    set their pixel's alpha to 1 (None: none)."""
     p, log1m = dist.cdf_and_log_sf(ops, x)
+    g = tcn.generator(ops, p, log1m)
+    if bool(torch.isfinite(log1m.detach().sum() + g.detach().sum())):  # the usual case: nothing saturated
+        keep = _keep(dist, x.detach(), eps, x_cut)
+        return (g * keep if keep is not None else g), None  # g is finite here
     sat = ~torch.isfinite(log1m)
     g = tcn.generator(ops, torch.where(sat, 0.5, p), torch.where(sat, math.log(0.5), log1m))
     over = ~torch.isfinite(g)
     if bool(over.any()):
         sat = sat | over
         g = tcn.generator(ops, torch.where(sat, 0.5, p), torch.where(sat, math.log(0.5), log1m))
-    keep = _keep(dist, x, eps, x_cut)
+    keep = _keep(dist, x.detach(), eps, x_cut)
     if keep is not None:
+        keep = keep > 0.0
         sat = sat & keep
         return torch.where(keep & ~sat, g, 0.0), sat
     return torch.where(sat, 0.0, g), sat
 
 
 def _keep(dist, x, eps, x_cut):
-    """Pairs that count: x >= F⁻¹(eps) (coverage >= eps) and x > x_cut; None: all."""
-    keep = x >= dist.argument_threshold(eps) if eps > 0 else None
+    """1.0 for the pairs that count, x >= F⁻¹(eps) (coverage >= eps) and x > x_cut, else 0.0
+    (arithmetic, see _below); None: all count."""
+    keep = 1.0 - _below(x, dist.argument_threshold(eps)) if eps > 0 else None
     if x_cut is not None:
-        keep = (x > x_cut) if keep is None else keep & (x > x_cut)
+        above = _below(x_cut, x)
+        keep = above if keep is None else keep * above
     return keep
 
 
@@ -365,41 +448,46 @@ def _from_sum(tcn, S, nsat):
     return torch.where(nsat > 0, 1.0, A)
 
 
+def _coverage_max(dist, x, eps, x_cut=None):
+    p = dist.cdf(ops, x)
+    p = torch.where(p >= eps, p, 0.0) if eps > 0 else p
+    return p if x_cut is None else torch.where(x > x_cut, p, 0.0)
+
+
 class SoftAlpha(torch.autograd.Function):
-    """Alpha [B, H, W] from polygon corners: forward streams over bands, backward recomputes each
-    band and applies the analytic geometric derivative (nothing per pair is stored)."""
+    """Alpha [B, H, W] from polygon corners: forward streams over blocks of pairs, backward
+    recomputes each block and applies the analytic geometric derivative (nothing per pair is stored)."""
 
     @staticmethod
     def forward(ctx, X, Y, tau, plan):
         s = plan.settings
         dist, tcn, eps = s.distribution, s.tconorm, s.eps
         x_cut = s.cutoff_argument(ops, tau.detach())
-        W = s.image_size[1]
-        B = plan.fc.B
+        H, W = s.image_size
+        B, K, Wc = plan.fc.B, plan.fc.K, plan.Wc
         geom = edge_table(X, Y)
-        parts = []
-        for r0, r1 in plan.bands:
-            face, pix, px, py = plan.pairs(r0, r1)
-            npix = B * (r1 - r0) * W
-            d, _ = signed_distance(geom.index_select(1, face), plan.fc.K, px, py)
-            x = dist.argument(ops, d, tau)
-            if tcn.kind == ARCHIMEDEAN:
-                g, sat = _generator_terms(dist, tcn, x, eps, x_cut)
-                S = X.new_zeros(npix).index_add_(0, pix, g)
-                nsat = torch.zeros(npix, dtype=torch.int32, device=X.device).index_add_(0, pix, sat.to(torch.int32))
-                parts.append(torch.stack([S, nsat.to(S.dtype)], 0).reshape(2, B, r1 - r0, W))
-            else:
-                p = dist.cdf(ops, x)
-                if eps > 0:
-                    p = torch.where(p >= eps, p, 0.0)
-                if x_cut is not None:
-                    p = torch.where(x > x_cut, p, 0.0)
-                A = X.new_zeros(npix).scatter_reduce_(0, pix.long(), p, "amax", include_self=True)
-                parts.append(A.reshape(1, B, r1 - r0, W))
-        acc = torch.cat(parts, 2)
+        S = X.new_zeros(B * H * Wc)
         if tcn.kind == ARCHIMEDEAN:
+            nsat = torch.zeros(B * H * Wc, dtype=torch.int32, device=X.device)
+            for blk in plan.chunks():
+                d = signed_distance(geom.index_select(0, blk.face), K, blk)
+                g, sat = _generator_terms(dist, tcn, dist.argument(ops, d, tau), eps, x_cut)
+                pix = blk.pix().reshape(-1)
+                S.index_add_(0, pix, g.reshape(-1))
+                if sat is not None:
+                    nsat.index_add_(0, pix, sat.reshape(-1).to(torch.int32))
+            acc = torch.stack([S, nsat.to(S.dtype)], 0).reshape(2, B, H, Wc)[..., :W]
             A = _from_sum(tcn, acc[0], acc[1])
         else:
+            for r0, r1, blk in plan.bands():
+                if blk is None:
+                    continue
+                d = signed_distance(geom.index_select(0, blk.face), K, blk)
+                p = _coverage_max(dist, dist.argument(ops, d, tau), eps, x_cut)
+                pix = blk.pix().reshape(-1).long()
+                Sb = X.new_zeros(B * (r1 - r0) * Wc).scatter_reduce_(0, pix, p.reshape(-1), "amax", include_self=True)
+                S.view(B, H, Wc)[:, r0:r1] = Sb.view(B, r1 - r0, Wc)
+            acc = S.reshape(1, B, H, Wc)[..., :W]
             A = acc[0]
             if tcn.kind != MAX:  # the hard logical "or": covered where some face has p >= 1/2
                 A = (A >= 0.5).to(X.dtype)
@@ -414,65 +502,97 @@ class SoftAlpha(torch.autograd.Function):
         s = plan.settings
         dist, tcn, eps = s.distribution, s.tconorm, s.eps
         x_cut = s.cutoff_argument(ops, tau.detach())
-        K = plan.fc.K
+        W = s.image_size[1]
+        B, K, Wc = plan.fc.B, plan.fc.K, plan.Wc
         if tcn.kind not in (ARCHIMEDEAN, MAX):
             return None, None, None, None
-        if tcn.kind == ARCHIMEDEAN:  # dL/dS = dL/dA · dA/dS, per pixel
-            with torch.enable_grad():
-                S = acc[0].detach().requires_grad_(True)
-                (gS,) = torch.autograd.grad(_from_sum(tcn, S, acc[1]), S, gA)
+        want_tau = ctx.needs_input_grad[2]
         geom = edge_table(X, Y)
-        gX, gY = torch.zeros_like(X).reshape(-1), torch.zeros_like(Y).reshape(-1)
+        gP = X.new_zeros(4, X.numel())  # per (face, edge k): the parts for corner k (x, y), corner k + 1 (x, y)
         gtau = torch.zeros((), dtype=X.dtype, device=X.device)
-        for r0, r1 in plan.bands:
-            face, pix, px, py = plan.pairs(r0, r1)
-            gpix = (gS if tcn.kind == ARCHIMEDEAN else gA)[:, r0:r1].reshape(-1)
-            w = gpix[pix]
-            d, _, k, t, ux, uy = signed_distance(geom.index_select(1, face), K, px, py, track=True)
+
+        def local_grad(blk, d, w, formula):
+            """∂L/∂d per pair (and accumulate ∂L/∂τ) by autograd on the spec formulas."""
+            nonlocal gtau
             with torch.enable_grad():
                 d_ = d.detach().requires_grad_(True)
-                tau_ = tau.detach().requires_grad_(True)
-                x = dist.argument(ops, d_, tau_)
-                if tcn.kind == ARCHIMEDEAN:
-                    out, _ = _generator_terms(dist, tcn, x, eps, x_cut)
-                else:  # max: the gradient goes to one face attaining the maximum
-                    p = dist.cdf(ops, x)
-                    pm = torch.where(p >= eps, p, 0.0) if eps > 0 else p
-                    pm = torch.where(x > x_cut, pm, 0.0) if x_cut is not None else pm
-                    Ap = A[:, r0:r1].reshape(-1)
-                    win = (pm.detach() == Ap[pix]) & (pm.detach() > 0)
-                    order = torch.where(win, torch.arange(pix.numel(), device=pix.device), -1)
-                    first = torch.full_like(Ap, -1, dtype=torch.long).scatter_reduce_(0, pix.long(), order, "amax")
-                    w = torch.where(win & (order == first[pix]), w, 0.0)
-                    out = pm
+                tau_ = tau.detach().requires_grad_(want_tau)
+                out = formula(dist.argument(ops, d_, tau_))
                 if not out.requires_grad:  # e.g. heaviside: coverage is piecewise constant
+                    return None
+                inputs = (d_, tau_) if want_tau else (d_,)
+                grads = torch.autograd.grad(out, inputs, w, allow_unused=True)
+            if want_tau and grads[1] is not None:
+                gtau = gtau + grads[1]
+            return grads[0]
+
+        def scatter(blk, gd, k, t, ux, uy):
+            gb = gd * t
+            ga = gd - gb
+            parts = (ga * ux, ga * uy, gb * ux, gb * uy)
+            # sums over each row's pixels per nearest edge, then per face: index_add per pair is
+            # slow where neighbouring pairs hit the same face and edge
+            for e in range(K):
+                m = (k - e).abs_().clamp_(max=1.0).neg_().add_(1.0)  # 1.0 where k == e
+                idx = blk.face * K + e
+                for i, v in enumerate(parts):
+                    gP[i].index_add_(0, idx, (v * m).sum(1))
+
+        if tcn.kind == ARCHIMEDEAN:
+            with torch.enable_grad():  # dL/dS = dL/dA · dA/dS, per pixel
+                S = acc[0].detach().requires_grad_(True)
+                (gS,) = torch.autograd.grad(_from_sum(tcn, S, acc[1]), S, gA)
+            gS = torch.nn.functional.pad(gS, (0, Wc - W)).reshape(-1)
+            for blk in plan.chunks():
+                w = gS.index_select(0, blk.pix().reshape(-1)).view(-1, blk.width)
+                d, k, t, ux, uy = signed_distance(geom.index_select(0, blk.face), K, blk, track=True)
+                gd = local_grad(blk, d, w, lambda x: _generator_terms(dist, tcn, x, eps, x_cut)[0])
+                if gd is not None:
+                    scatter(blk, gd, k, t, ux, uy)
+        else:  # max: the gradient goes to one face attaining the maximum
+            A, gA = (torch.nn.functional.pad(t, (0, Wc - W)) for t in (A, gA))
+            for r0, r1, blk in plan.bands():
+                if blk is None:
                     continue
-                gd, gt = torch.autograd.grad(out, (d_, tau_), w, allow_unused=True)
-            if gt is not None:
-                gtau = gtau + gt
-            base = face * K
-            k1 = torch.where(k + 1 == K, 0, k + 1)
-            ga, gb = gd * (1 - t), gd * t
-            gX.index_add_(0, base + k, ga * ux).index_add_(0, base + k1, gb * ux)
-            gY.index_add_(0, base + k, ga * uy).index_add_(0, base + k1, gb * uy)
-        return gX.reshape(X.shape), gY.reshape(Y.shape), gtau.reshape(tau.shape), None
+                pix = blk.pix().reshape(-1).long()
+                Ap = A[:, r0:r1].reshape(-1)[pix].view(-1, blk.width)
+                w = gA[:, r0:r1].reshape(-1)[pix].view(-1, blk.width)
+                d, k, t, ux, uy = signed_distance(geom.index_select(0, blk.face), K, blk, track=True)
+                with torch.no_grad():
+                    pm = _coverage_max(dist, dist.argument(ops, d, tau), eps, x_cut)
+                win = ((pm == Ap) & (pm > 0)).reshape(-1)
+                order = torch.where(win, torch.arange(pix.numel(), device=pix.device), -1)
+                first = torch.full((B * (r1 - r0) * Wc,), -1, dtype=torch.long, device=pix.device).scatter_reduce_(0, pix, order, "amax")
+                w = torch.where((win & (order == first[pix])).view(-1, blk.width), w, 0.0)
+                gd = local_grad(blk, d, w, lambda x: _coverage_max(dist, x, eps, x_cut))
+                if gd is not None:
+                    scatter(blk, gd, k, t, ux, uy)
+        gP = gP.view(4, *X.shape)
+        gX = gP[0] + gP[2].roll(1, 1)  # edge k − 1 ends at corner k
+        gY = gP[1] + gP[3].roll(1, 1)
+        return gX, gY, gtau.reshape(tau.shape), None
 
 
-def rgb_band(plan, X, Y, shade, tau, r0, r1):
-    """RGB of rows [r0, r1) by plain autograd: [B, r1 - r0, W, 3]."""
+def rgb_band(plan, X, Y, shade, tau, band):
+    """RGB of the image rows of plan.bands()[band] by plain autograd: [B, r1 − r0, W, 3]."""
     s, fc = plan.settings, plan.fc
     W = s.image_size[1]
-    npix = fc.B * (r1 - r0) * W
-    face, pix, px, py = plan.pairs(r0, r1)
-    d, inside = signed_distance(edge_table(X, Y).index_select(1, face), fc.K, px, py)
-    x = s.distribution.argument(ops, d, tau)
+    r0, r1, blk = plan.bands()[band]
+    npix = fc.B * (r1 - r0) * plan.Wc
+    if blk is None:
+        bg = torch.as_tensor(s.background, dtype=X.dtype, device=X.device)
+        return bg.expand(fc.B, r1 - r0, W, 3)
+    d = signed_distance(edge_table(X, Y).index_select(0, blk.face), fc.K, blk)
+    inside = d >= 0  # outside, d <= −sqrt(tiny)
+    x = s.distribution.argument(ops, d, tau).reshape(-1)
     p = s.distribution.cdf(ops, x)
     keep = p >= s.eps if s.eps > 0 else None
     x_cut = s.cutoff_argument(ops, tau.detach())
     if x_cut is not None:
         keep = (x > x_cut) if keep is None else keep & (x > x_cut)
-    rgb = _blend(s, fc, shade.index_select(1, face), pix, npix, px, py, p, keep, inside, face)
-    return rgb.reshape(fc.B, r1 - r0, W, 3)
+    face, pix, px, py = blk.flat()
+    rgb = _blend(s, fc, shade.index_select(1, face), pix, npix, px, py, p, keep, inside.reshape(-1), face)
+    return rgb.reshape(fc.B, r1 - r0, plan.Wc, 3)[:, :, :W]
 
 
 def _blend(settings, fc, sh, pix, npix, px, py, p, keep, inside, face):
@@ -524,19 +644,18 @@ def render(settings, camera, verts, faces, colors, per_face):
     tau = tau.to(verts.dtype) if isinstance(tau, torch.Tensor) else torch.tensor(float(tau), dtype=verts.dtype, device=verts.device)
     radius = settings.culling_distance(settings.tau_value)
     with torch.no_grad():
-        i0, i1, j0, j1 = pixel_ranges(fc, H, W, radius)
-        bands = row_bands(i0, i1, j1 - j0 + 1, H, settings.max_pairs)
-    plan = Plan(settings, fc, i0, i1, j0, j1, bands)
+        plan = Plan(settings, fc, *pixel_ranges(fc, H, W, radius))
     alpha = SoftAlpha.apply(fc.X, fc.Y, tau, plan)
     if fc.shade is None:
         return torch.cat([alpha.new_zeros(*alpha.shape, 3), alpha[..., None]], -1)
     needs_grad = torch.is_grad_enabled() and any(t.requires_grad for t in (fc.X, fc.shade, tau))
+    nb = len(plan.bands())
     parts = []
-    for r0, r1 in bands:
-        if needs_grad and len(bands) > 1:
-            parts.append(checkpoint(rgb_band, plan, fc.X, fc.Y, fc.shade, tau, r0, r1,
+    for band in range(nb):
+        if needs_grad and nb > 1:
+            parts.append(checkpoint(rgb_band, plan, fc.X, fc.Y, fc.shade, tau, band,
                                     use_reentrant=False, preserve_rng_state=False))
         else:
-            parts.append(rgb_band(plan, fc.X, fc.Y, fc.shade, tau, r0, r1))
+            parts.append(rgb_band(plan, fc.X, fc.Y, fc.shade, tau, band))
     rgb = torch.cat(parts, 1) if len(parts) > 1 else parts[0]
     return torch.cat([rgb, alpha[..., None]], -1)
