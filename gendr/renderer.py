@@ -15,6 +15,13 @@ from .tconorms import TConorm, tconorm as make_tconorm
 
 BLENDS = ("softmax", "hard", None)
 ENTRY_POINT_GROUP = "gendr.backends"
+#: Lambert's kink max(0, n·(−l)): both backends treat |n·(−l)| <= LAMBERT_KINK_ULPS·(machine eps of
+#: the dtype) as exactly 0, where the clamp's gradient passes (torch.clamp semantics). A mesh with
+#: vertices on a plane of symmetry perpendicular to the light (an icosphere's z = 0 equator under the
+#: default light (0, 0, −1)) has n·(−l) = 0 there up to the rounding of the vertex-normal sums, whose
+#: sign depends on the summation order (the backends' orders differ); without the snap, each backend
+#: picked a different one-sided derivative. Colours change by at most diffuse·LAMBERT_KINK_ULPS·eps.
+LAMBERT_KINK_ULPS = 256
 
 
 @dataclass(frozen=True, eq=False)

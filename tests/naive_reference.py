@@ -43,6 +43,7 @@ import torch
 
 from gendr_torch.ops import torch_ops as ops  # the ops namespace only
 
+from gendr.renderer import LAMBERT_KINK_ULPS
 from gendr.tconorms import ARCHIMEDEAN, HARD_OR, MAX
 
 __all__ = ["render_naive", "render_naive_settings", "pixel_face_geometry"]
@@ -239,7 +240,10 @@ def render_naive(vertices, faces, camera, *, distribution, tconorm, tau, image_s
                 for c in range(3):
                     vnormal = vnormal.index_add(1, faces[f, c:c + 1], fnormal[:, f:f + 1])
             normals = vnormal[:, faces]
-        lambert = torch.clamp((_normalize(normals) * -light).sum(-1, keepdim=True), min=0.0)
+        ndl = (_normalize(normals) * -light).sum(-1, keepdim=True)
+        # Lambert's kink: |n·(−l)| within LAMBERT_KINK_ULPS·eps counts as exactly 0 (gradient passes)
+        ndl = torch.where(ndl.detach().abs() <= LAMBERT_KINK_ULPS * torch.finfo(dtype).eps, ndl - ndl.detach(), ndl)
+        lambert = torch.clamp(ndl, min=0.0)
         corner_rgb = albedo * (ambient + diffuse * lambert)  # [B, F, 3 corners, 3]
         bg = _as_tensor(background, dtype)
 

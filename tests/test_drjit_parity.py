@@ -25,6 +25,7 @@ dr = pytest.importorskip("drjit", reason="the Dr.Jit backend needs drjit (pip in
 torch = pytest.importorskip("torch")
 
 import gendr  # noqa: E402
+from gendr.scenes import icosphere  # noqa: E402
 from gendr.grid import DISTRIBUTION_SETTINGS, TCONORM_SETTINGS  # noqa: E402
 from test_renderer_reference import (FACES, FACES_SOFTMAX, ZERO_AREA, H, W, face_colors, make_camera,  # noqa: E402
                                      scene_vertices, vertex_colors)
@@ -279,3 +280,64 @@ def test_mixed_input_dtypes_follow_the_vertices():
     ref = gendr.Renderer("logistic", "probabilistic", tau=0.1, image_size=(H, W)).render(
         scene_vertices(), FACES_SOFTMAX, make_camera("orbit")[0], face_colors=cols.double())
     assert float((img.detach().double() - ref.detach()).abs().max()) <= 2e-4
+
+
+# --- Lambert's kink on a symmetric mesh (regression) ---------------------------------------------
+# An icosphere under the default light (0, 0, −1): its 16 vertices on the z = 0 equator have normals
+# with n·(−l) = 0 up to the rounding of the vertex-normal sums (±1e-18 here), whose sign depends on
+# the summation order, which differs between the backends (torch index_add, face-major; Dr.Jit
+# scatter_reduce, corner-major). Each backend's clamp max(0, n·(−l)) then took a different one-sided
+# derivative there: vertex gradients differed by up to 5.6 (softmax, logistic), 10.4 (cauchy) and 8.4
+# (hard) with |grad| ~ 130, images agreeing to 1e-14. Both now snap |n·(−l)| <= LAMBERT_KINK_ULPS·eps
+# to exactly 0, where the gradient passes (gendr.renderer.LAMBERT_KINK_ULPS).
+# (cauchy with the softmax blend also differed, by 10.4, but its infinite culling radius makes it ~30 s here)
+KINK_CASES = [("softmax", gendr.distribution("logistic"), 0.01), ("hard", gendr.distribution("cauchy", squared=True), 1e-4)]
+
+
+def _icosphere_grad(backend, blend, dist, tau, dtype=torch.float64, **kw):
+    m = icosphere(2)
+    v = torch.tensor(m.vertices, dtype=dtype, requires_grad=True)
+    r = gendr.Renderer(dist, "probabilistic", tau=tau, image_size=48, blend=blend, gamma=1e-2, backend=backend, **kw)
+    img = r.render(v, torch.tensor(m.faces), gendr.orbit_camera(30.0, 20.0, 3.0))
+    w = torch.linspace(0, 1, img.numel(), dtype=torch.float64).reshape(img.shape).to(dtype)
+    (img * w).sum().backward()
+    return img.detach(), v.grad
+
+
+@pytest.mark.parametrize("blend,dist,tau", KINK_CASES, ids=[f"{b}|{d.label()}" for b, d, _ in KINK_CASES])
+def test_lambert_kink_icosphere_f64(blend, dist, tau):
+    (it, gt), (id_, gd) = (_icosphere_grad(be, blend, dist, tau) for be in ("torch", "drjit"))
+    assert float((it - id_).abs().max()) <= F64_TOL
+    err = float((gt - gd).abs().max())
+    assert err <= F64_TOL, f"vertex gradients differ by {err:.3g} (max |grad| {float(gt.abs().max()):.3g})"
+
+
+def test_lambert_kink_icosphere_f32():
+    """Dr.Jit float32 against the torch float64 reference (the float32 tolerances above)."""
+    blend, dist, tau = KINK_CASES[0]
+    (i64, g64), (i32, g32) = _icosphere_grad("torch", blend, dist, tau), _icosphere_grad("drjit", blend, dist, tau, torch.float32)
+    assert float((i32.double() - i64).abs().max()) <= F32_FWD_VS_F64
+    err, scale = float((g32.double() - g64).abs().max()), float(g64.abs().max())
+    assert err <= F32_GRAD_VS_F64 * scale + 1e-5, f"float32 vertex gradients vs float64: {err:.3g} (max {scale:.3g})"
+
+
+def test_icosphere_softmax_gradients_match_finite_differences():
+    """The softmax blend's vertex gradients on the icosphere, both backends, against float64 central
+    differences along random directions. A light in general position (no vertex on Lambert's kink,
+    where central differences average the two one-sided derivatives) and eps = 0 (the eps mask is a
+    discontinuity: a pair crossing it within the step would swamp the difference quotient)."""
+    m = icosphere(2)
+    V, F, cam = torch.tensor(m.vertices), torch.tensor(m.faces), gendr.orbit_camera(30.0, 20.0, 3.0)
+    w = torch.linspace(0, 1, 24 * 24 * 4, dtype=torch.float64).reshape(1, 24, 24, 4)
+    gen = torch.Generator().manual_seed(0)
+    dirs = [torch.randn(V.shape, generator=gen, dtype=torch.float64) for _ in range(2)]
+    h = 1e-6  # truncation ~h²·|f'''| (τ = 0.01) and rounding ~1e-16·|f|/h: both far below the tolerance
+    for be in ("torch", "drjit"):
+        r = gendr.Renderer("logistic", "probabilistic", tau=0.01, image_size=24, blend="softmax", gamma=1e-2,
+                           backend=be, eps=0.0, light_direction=(0.1, 0.2, -1.0))
+        v = V.clone().requires_grad_(True)
+        (r.render(v, F, cam) * w).sum().backward()
+        for u in dirs:
+            fd = float(((r.render(V + h * u, F, cam) - r.render(V - h * u, F, cam)) * w).sum()) / (2 * h)
+            ad = float((v.grad * u).sum())
+            assert abs(ad - fd) <= 1e-6 * max(1.0, abs(fd)), f"{be}: AD {ad:.10g} vs FD {fd:.10g}"

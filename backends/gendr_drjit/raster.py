@@ -30,6 +30,7 @@ import math
 import numpy as np
 import drjit as dr
 
+from gendr.renderer import LAMBERT_KINK_ULPS
 from gendr.tconorms import ARCHIMEDEAN, MAX
 
 #: tile edges tried in order (see tile_size); TILE != 0 forces one
@@ -249,11 +250,16 @@ def _shading_data(settings, camera, ops, T, Pf, H, W, verts, Bv, V, B, F, b_f, f
     L = settings.light_direction
     ln = math.sqrt(sum(c * c for c in L))
     ml = tuple(-c / ln for c in L)
+    kink_tol = LAMBERT_KINK_ULPS * float(np.finfo(np.float64 if T.double else np.float32).eps)
     colour = []
     for i in range(3):
         nrm = normals[i]
         norm = _clamp_min(dr.sqrt(_dot(nrm, nrm)), 1e-30)
-        lam = _clamp_min(_dot(nrm, ml) / norm, 0.0)
+        ndl = _dot(nrm, ml) / norm
+        # Lambert's kink: n·(−l) within rounding of 0 snaps to exactly 0 (gradient passes), as in
+        # gendr_torch.raster._shading_data — its sign there is summation-order noise
+        ndl = dr.select(dr.abs(dr.detach(ndl)) <= kink_tol, ndl - dr.detach(ndl), ndl)
+        lam = _clamp_min(ndl, 0.0)
         shade = settings.ambient + settings.diffuse * lam
         colour.append(tuple(albedo[i][c] * shade for c in range(3)))
     out = A + Bb + C0 + depth + [colour[i][c] for i in range(3) for c in range(3)]

@@ -21,6 +21,7 @@ from torch.utils.checkpoint import checkpoint
 
 from gendr.cameras import VEC3
 from gendr.errors import InputValueError, ShapeError
+from gendr.renderer import LAMBERT_KINK_ULPS
 from gendr.tconorms import ARCHIMEDEAN, MAX
 
 from .ops import torch_ops as ops
@@ -210,7 +211,12 @@ def _shading_data(settings, camera, P, H, W, verts, faces, tri, colors, per_face
     normals = normals / torch.clamp(torch.linalg.vector_norm(normals, dim=-1, keepdim=True), min=1e-30)
     light = torch.as_tensor(settings.light_direction, dtype=verts.dtype, device=verts.device)
     light = light / torch.linalg.vector_norm(light)
-    lambert = torch.clamp((normals * -light).sum(-1, keepdim=True), min=0.0)
+    ndl = (normals * -light).sum(-1, keepdim=True)
+    # n·(−l) within rounding of 0 is Lambert's kink itself (e.g. a mesh's vertices on a plane of
+    # symmetry perpendicular to the light): its sign there is summation-order noise, so snap it to exactly
+    # 0, where the clamp passes the gradient (torch.clamp semantics), as the Dr.Jit backend does
+    ndl = torch.where(ndl.detach().abs() <= LAMBERT_KINK_ULPS * torch.finfo(ndl.dtype).eps, ndl - ndl.detach(), ndl)
+    lambert = torch.clamp(ndl, min=0.0)
     color = albedo * (settings.ambient + settings.diffuse * lambert)  # [B, F, 3 corners, 3 rgb]
     shade = torch.cat([a, b, c0, depth, color.reshape(B, -1, 9)], -1)  # [B, F, 21]
     return shade.reshape(B * tri.shape[1], 21).t()
