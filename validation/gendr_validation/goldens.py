@@ -27,8 +27,8 @@ CASES = (("icosphere", 271), ("cube", 0), ("torus", 164), ("teapot_like", 649), 
 TOLERANCES = {"alpha": 1e-5, "rgb": 1e-5, "grad_vertices": 1e-4, "grad_tau": 1e-4}
 TAU = 0.03
 #: unlit (ambient only) with random face albedo: the RGB still varies per face, and the goldens do not
-#: encode the Lambert-shading vertex gradients, which are wrong in the torch backend today (see
-#: docs/validation.md, "known issues"); once fixed, switch to lit shading and regenerate
+#: encode Lambert-shading vertex gradients, which are one-sided at the kink n·(−l) = 0 that
+#: symmetric scenes under the default light sit on (docs/validation.md, "known issues")
 SHADING = {"ambient": 1.0, "diffuse": 0.0}
 
 
