@@ -291,6 +291,15 @@ def run_case(backend, name, repeats, threads, freeze=True, device="cpu"):
     return out
 
 
+def emit(result, out=None):
+    """Print the JSON of a benchmark result and, with ``out``, write it there too."""
+    text = json.dumps(result, indent=2)
+    print(text)
+    if out:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(text + "\n")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--backend", default="torch")
@@ -314,11 +323,7 @@ def main(argv=None):
         return 0
     result = {"machine": machine(), "results": [run_case(a.backend, c, a.repeats, a.threads, not a.no_freeze, a.device)
                                                 for c in (a.case or ["default"])]}
-    text = json.dumps(result, indent=2)
-    print(text)
-    if a.out:
-        a.out.parent.mkdir(parents=True, exist_ok=True)
-        a.out.write_text(text + "\n")
+    emit(result, a.out)
 
 
 if __name__ == "__main__":

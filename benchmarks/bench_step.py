@@ -41,7 +41,7 @@ import numpy as np
 import torch
 
 import gendr
-from bench_render import machine, measure, run_fresh, summary
+from bench_render import emit, machine, measure, run_fresh, summary
 from gendr_experiments.pose import PoseProblem
 from gendr_experiments.shape import ShapeProblem
 
@@ -121,11 +121,7 @@ def main(argv=None):
         repeats = a.repeats or (1 if a.quick else REPEATS[dist])
         result["results"].append(run_case(case, backend, dist, repeats, a.threads))
     result["loadavg_after"] = loadavg()
-    text = json.dumps(result, indent=2)
-    print(text)
-    if a.out:
-        a.out.parent.mkdir(parents=True, exist_ok=True)
-        a.out.write_text(text + "\n")
+    emit(result, a.out)
     return 0
 
 

@@ -24,7 +24,7 @@ import gendr
 from gendr.scenes import icosphere
 
 sys.path.insert(0, str(Path(__file__).parent))
-from bench_render import machine  # noqa: E402
+from bench_render import emit, machine  # noqa: E402
 
 #: (distribution, kwargs, τ values): heavy tails, where the cut-off drops coverage, and a light tail
 INSTANCES = [("cauchy", {}, (1e-2, 1e-3)), ("cauchy", {"squared": True}, (1e-4, 1e-5)),
@@ -81,11 +81,7 @@ def main(argv=None):
                          "fwd_bwd_ms_exact": t_exact, "fwd_bwd_ms_cutoff": t_cut, "speedup": t_exact / t_cut})
             print(json.dumps(rows[-1]), file=sys.stderr)
     out = {"machine": machine(), "backend": a.backend, "threads": a.threads, "repeats": a.repeats, "rows": rows}
-    text = json.dumps(out, indent=2)
-    print(text)
-    if a.out:
-        a.out.parent.mkdir(parents=True, exist_ok=True)
-        a.out.write_text(text + "\n")
+    emit(out, a.out)
 
 
 if __name__ == "__main__":
