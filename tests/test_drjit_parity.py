@@ -341,3 +341,23 @@ def test_icosphere_softmax_gradients_match_finite_differences():
             fd = float(((r.render(V + h * u, F, cam) - r.render(V - h * u, F, cam)) * w).sum()) / (2 * h)
             ad = float((v.grad * u).sum())
             assert abs(ad - fd) <= 1e-6 * max(1.0, abs(fd)), f"{be}: AD {ad:.10g} vs FD {fd:.10g}"
+
+
+def test_exact_ties_go_to_the_lowest_face():
+    """Two coincident copies of a triangle (own vertices, different albedo): exact ties of depth
+    (hard z-buffer) and of coverage (max T-conorm) go to the lower face index in both backends, as
+    in the naive reference: face 0's colour, and the max's gradient on face 0's vertices only."""
+    tri = torch.tensor([[-0.6, -0.5, 0.0], [0.6, -0.5, 0.0], [0.0, 0.6, 0.0]], dtype=torch.float64)
+    faces = torch.tensor([[0, 1, 2], [3, 4, 5]])
+    albedo = torch.tensor([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
+    cam = gendr.PerspectiveCamera(eye=(0.05, 0.02, 3.0), fov_y=40.0)
+    for be in ("torch", "drjit"):
+        v = torch.cat([tri, tri]).requires_grad_(True)
+        r = gendr.Renderer("logistic", "max", tau=0.05, image_size=(16, 20), eps=1e-3, blend="hard", backend=be)
+        img = r.render(v, faces, cam, face_colors=albedo)
+        rgb = img.detach()[0]
+        covered = rgb[..., 3] > 0.5
+        assert int(covered.sum()) > 20
+        assert float(rgb[..., 0][covered].min()) > 0.0 and float(rgb[..., 2][covered].abs().max()) == 0.0, be
+        img[..., 3].sum().backward()
+        assert float(v.grad[:3].abs().max()) > 0.0 and float(v.grad[3:].abs().max()) == 0.0, be

@@ -567,9 +567,8 @@ class SoftAlpha(torch.autograd.Function):
                 with torch.no_grad():
                     pm = _coverage_max(dist, dist.argument(ops, d, tau), eps, x_cut)
                 win = ((pm == Ap) & (pm > 0)).reshape(-1)
-                order = torch.where(win, torch.arange(pix.numel(), device=pix.device), -1)
-                first = torch.full((B * (r1 - r0) * Wc,), -1, dtype=torch.long, device=pix.device).scatter_reduce_(0, pix, order, "amax")
-                w = torch.where((win & (order == first[pix])).view(-1, blk.width), w, 0.0)
+                win = _lowest_face(win, blk.face[:, None].expand(-1, blk.width).reshape(-1), pix, B * (r1 - r0) * Wc)
+                w = torch.where(win.view(-1, blk.width), w, 0.0)
                 gd = local_grad(blk, d, w, lambda x: _coverage_max(dist, x, eps, x_cut))
                 if gd is not None:
                     scatter(blk, gd, k, t, ux, uy)
@@ -601,6 +600,15 @@ def rgb_band(plan, X, Y, shade, tau, band):
     return rgb.reshape(fc.B, r1 - r0, plan.Wc, 3)[:, :, :W]
 
 
+def _lowest_face(win, face, pix, npix):
+    """``win`` kept only for the lowest face index among each pixel's winners: exact ties (of depth,
+    or of coverage for max) go to the lowest face, as in the Dr.Jit backend and the naive reference."""
+    big = torch.iinfo(torch.int64).max
+    key = torch.where(win, face.long(), big)
+    low = torch.full((npix,), big, dtype=torch.long, device=face.device).scatter_reduce(0, pix.long(), key, "amin")
+    return win & (key == low[pix.long()])
+
+
 def _blend(settings, fc, sh, pix, npix, px, py, p, keep, inside, face):
     dtype, device = px.dtype, px.device
     pix = pix.long()  # scatter_reduce needs int64 indices
@@ -621,10 +629,7 @@ def _blend(settings, fc, sh, pix, npix, px, py, p, keep, inside, face):
         use = inside & fc.front[face] if settings.cull_backfaces else inside
         key = torch.where(use, depth.detach(), torch.full_like(depth, math.inf))
         dmin = torch.full((npix,), math.inf, dtype=dtype, device=device).scatter_reduce(0, pix, key, "amin")
-        win = use & (key == dmin[pix])
-        order = torch.where(win, torch.arange(pix.numel(), device=device), -1)
-        first = torch.full((npix,), -1, dtype=torch.long, device=device).scatter_reduce(0, pix, order, "amax")
-        win = win & (order == first[pix])
+        win = _lowest_face(use & (key == dmin[pix]), face, pix, npix)
         out = torch.zeros(npix, 3, dtype=dtype, device=device).index_add(0, pix[win], col[win])
         covered = torch.zeros(npix, dtype=torch.bool, device=device)
         covered[pix[win]] = True
