@@ -37,7 +37,7 @@ from gendr.tconorms import ARCHIMEDEAN, MAX
 TILES = (4, 8, 16, 32)
 TILE = 0
 #: pixel rows per lane of the archimedean alpha loops (Pixels): a lane shares one face's reads and
-#: edge set-up between the pixels of its strip; with 8×8 tiles, 16 lanes (one AVX-512 packet) per tile
+#: edge set-up between the pixels of its strip (at most the tile edge: 4 lanes per 4×4 tile)
 STRIP = 4
 #: memory budget of the per-tile face bit masks (tiles · ceil(F/32) · 4 bytes)
 MASK_BYTES = 64 << 20
@@ -471,12 +471,11 @@ def generator_terms(dist, tcn, ops, x, x_eps, x_cut=None):
     return g, sat
 
 
-def coverage(s, ops, d, tau):
-    """p = F(x), 0 where p < eps or beyond the reference cut-off."""
+def coverage(s, ops, d, tau, x_cut):
+    """p = F(x), 0 where p < eps or x <= x_cut (the reference cut-off; None: none)."""
     x = s.distribution.argument(ops, d, tau)
     p = s.distribution.cdf(ops, x)
     p = dr.select(p >= s.eps, p, 0.0) if s.eps > 0 else p
-    x_cut = s.cutoff_argument(ops, dr.detach(tau))
     return p if x_cut is None else dr.select(x > x_cut, p, 0.0)
 
 
@@ -540,8 +539,8 @@ def _strip_pixel(T, edges, py, track):
     nearest edge's (k, t, ux, uy): the signed distance moves by (1 − t)·u·δP_k + t·u·δP_{k+1}."""
     d2 = emin = None
     for k, (Py, Ex, Ey, nx, ny, c, il, dx, dxnx, dxEx) in enumerate(edges):
-        # evaluated in the same order as distance_parts (and the torch backend): the same rounding
-        # decides ties between edges (zero-area faces), whose corners get different gradients
+        # evaluated in the torch backend's order: the same rounding decides ties between edges
+        # (zero-area faces), whose corners get different gradients
         dy = py - Py
         t = dr.clip((dxEx + dy * Ey) * il, 0.0, 1.0)
         qx, qy = dx - t * Ex, dy - t * Ey
@@ -604,7 +603,7 @@ class AlphaSum(dr.CustomOp):
     AD on the scalar argument x, see _local_derivative), accumulates δ_S · ∂g/∂x · ∂x/∂d ·
     ∂d/∂(corner) over the lane's strip for the corners of the face (the signed distance's exact
     first-order dependence: the two corners of the nearest edge) and scatter-adds that once per
-    (lane, face), pre-reduced over the SIMD packet (its lanes share the face); δ_S · ∂g/∂x · ∂x/∂τ
+    (lane, face) (BWD_MODE); δ_S · ∂g/∂x · ∂x/∂τ
     goes into a per-lane τ accumulator summed once after the loop. Same derivatives as Dr.Jit's
     generic reverse-mode sum loop (tests/test_drjit_freeze.py)."""
 
@@ -730,11 +729,12 @@ def alpha_max(s, fc, T, ops, pix, tau):
     tcn = s.tconorm
     px, py = pix.px, pix.py[0]
     tau_d = dr.detach(tau)
+    x_cut = s.cutoff_argument(ops, tau_d)  # (once, outside the loop)
 
     def body(w, bits, best, arg):
         f, w, bits = pix.next_face(w, bits)
         d, _ = signed_distance(fc, T, f, px, py)
-        p = coverage(s, ops, d, tau_d)
+        p = coverage(s, ops, d, tau_d, x_cut)
         better = p > best
         return w, bits, dr.select(better, p, best), dr.select(better, f, arg)
 
@@ -746,7 +746,7 @@ def alpha_max(s, fc, T, ops, pix, tau):
     has = arg != _NONE
     f = dr.select(has, arg, 0)
     d, _ = signed_distance(fc, T, f, px, py)
-    return dr.select(has, coverage(s, ops, d, tau), 0.0)
+    return dr.select(has, coverage(s, ops, d, tau, x_cut), 0.0)
 
 
 def rgb_hard(s, fc, T, ops, pix):
@@ -775,10 +775,11 @@ def rgb_softmax(s, fc, T, ops, pix, tau):
     gamma, beps, cull = s.gamma, s.background_eps, s.cull_backfaces
     zscale = 1.0 / (fc.far - fc.near)
     tau_d = dr.detach(tau)
+    x_cut = s.cutoff_argument(ops, tau_d)  # (once, outside the loops)
 
     def live_zt(f, tau_):
         d, _ = signed_distance(fc, T, f, px, py)
-        p = coverage(s, ops, d, tau_)
+        p = coverage(s, ops, d, tau_, x_cut)
         live = p > 0.0
         if cull:
             live = live & dr.gather(T.Bool, fc.front, f)
