@@ -590,13 +590,9 @@ def rgb_band(plan, X, Y, shade, tau, band):
     d = signed_distance(edge_table(X, Y).index_select(0, blk.face), fc.K, blk)
     inside = d >= 0  # outside, d <= −sqrt(tiny)
     x = s.distribution.argument(ops, d, tau).reshape(-1)
-    p = s.distribution.cdf(ops, x)
-    keep = p >= s.eps if s.eps > 0 else None
-    x_cut = s.cutoff_argument(ops, tau.detach())
-    if x_cut is not None:
-        keep = (x > x_cut) if keep is None else keep & (x > x_cut)
+    p = _coverage_max(s.distribution, x, s.eps, s.cutoff_argument(ops, tau.detach()))  # 0 where culled
     face, pix, px, py = blk.flat()
-    rgb = _blend(s, fc, shade.index_select(1, face), pix, npix, px, py, p, keep, inside.reshape(-1), face)
+    rgb = _blend(s, fc, shade.index_select(1, face), pix, npix, px, py, p, inside.reshape(-1), face)
     return rgb.reshape(fc.B, r1 - r0, plan.Wc, 3)[:, :, :W]
 
 
@@ -609,7 +605,7 @@ def _lowest_face(win, face, pix, npix):
     return win & (key == low[pix.long()])
 
 
-def _blend(settings, fc, sh, pix, npix, px, py, p, keep, inside, face):
+def _blend(settings, fc, sh, pix, npix, px, py, p, inside, face):
     dtype, device = px.dtype, px.device
     pix = pix.long()  # scatter_reduce needs int64 indices
     u = [sh[i] * px + sh[3 + i] * py + sh[6 + i] for i in range(3)]
@@ -621,9 +617,6 @@ def _blend(settings, fc, sh, pix, npix, px, py, p, keep, inside, face):
     # a near-clipped face extrapolates towards its corner behind the camera: clamp to the near plane
     depth = torch.clamp(b[0] * sh[9] + b[1] * sh[10] + b[2] * sh[11], min=fc.near)
     col = torch.stack([b[0] * sh[12 + c] + b[1] * sh[15 + c] + b[2] * sh[18 + c] for c in range(3)], 1)
-    use = keep if keep is not None else torch.ones_like(inside)
-    if settings.cull_backfaces:
-        use = use & fc.front[face]
     bg = torch.as_tensor(settings.background, dtype=dtype, device=device)
     if settings.blend == "hard":  # purely geometric: the nearest face containing the pixel centre
         use = inside & fc.front[face] if settings.cull_backfaces else inside
@@ -637,7 +630,9 @@ def _blend(settings, fc, sh, pix, npix, px, py, p, keep, inside, face):
     # softmax over depth (SoftRas): weights p·exp(z̃/γ), background exp(ε/γ)
     zt = (fc.far - depth) / (fc.far - fc.near)
     gamma, beps = settings.gamma, settings.background_eps
-    live = use & (p > 0)
+    live = p > 0  # (p is 0 where culled)
+    if settings.cull_backfaces:
+        live = live & fc.front[face]
     key = torch.where(live, zt.detach(), torch.full_like(zt, -math.inf))
     m = torch.full((npix,), beps, dtype=dtype, device=device).scatter_reduce(0, pix, key, "amax")
     # exponent <= 0 where live; 0 elsewhere so that exp cannot overflow into a 0·inf = NaN gradient
