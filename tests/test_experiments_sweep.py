@@ -3,8 +3,9 @@ import json
 
 import pytest
 
-from gendr_experiments.sweep import (ResultStore, best_setting_search, execute, expand, fine_grid, load_rows,
-                                     run_config, summarize_best, write_csv)
+from gendr_experiments.common import source_hash
+from gendr_experiments.sweep import (OtherCodeError, ResultStore, best_setting_search, execute, expand, fine_grid,
+                                     load_rows, run_config, summarize_best, verify_rows, write_csv)
 
 # a tiny shape problem: ~0.1 s per run
 TINY = dict(target="tetrahedron", steps=3, image_size=12, views=2, subdivisions=1)
@@ -27,8 +28,12 @@ def test_run_config_row_fields():
     row = run_config(_configs()[0])
     assert row["status"] == "ok", row.get("error")
     for k in ("key", "label", "distribution", "squared", "tconorm", "tau", "lr", "seed", "metric", "seconds",
-              "versions", "config", "finished_at"):
+              "provenance", "code_hash", "config", "finished_at", "protocol"):
         assert k in row
+    prov = row["provenance"]
+    assert prov["code_hash"] == row["code_hash"] == source_hash("torch")
+    assert prov["backend"] == "torch" and prov["device"] == "cpu" and prov["dtype"] == "float32"
+    assert prov["torch_threads"] == 1 and prov["versions"]["gendr"]
     assert row["label"] == "uniform|probabilistic" if row["instance"] == 1 else "|" in row["label"]
     assert 0.0 <= row["metric"] <= 1.0
     json.dumps(row, allow_nan=False)
@@ -85,3 +90,40 @@ def test_pool_and_dask_localcluster_give_identical_metrics(tmp_path):
     assert [r["key"] for r in pool] == [r["key"] for r in dask]
     assert [r["metric"] for r in pool] == [r["metric"] for r in dask]
     assert {r["experiment"] for r in pool} == {"shape", "pose"}
+
+
+def test_resume_refuses_rows_of_other_code(tmp_path):
+    path = tmp_path / "r.jsonl"
+    cfgs = _configs()[:2]
+    rows = execute(cfgs, path, workers=0, progress=False)
+    # the same rows as if another version of the code had made them (and one row without a hash)
+    lines = [json.loads(x) for x in path.read_text().splitlines()]
+    lines[0]["code_hash"] = "0" * 16
+    del lines[1]["code_hash"]
+    path.write_text("".join(json.dumps(x) + "\n" for x in lines))
+    with pytest.raises(OtherCodeError, match="2 of the 2 finished rows"):
+        execute(cfgs, path, workers=0, progress=False)
+    assert len(path.read_text().splitlines()) == 2  # refused before running anything
+    kept = execute(cfgs, path, workers=0, progress=False, other_code="keep")
+    assert [r.get("code_hash") for r in kept] == ["0" * 16, None]
+    rerun = execute(cfgs, path, workers=0, progress=False, other_code="rerun")
+    assert [r["code_hash"] for r in rerun] == [source_hash("torch")] * 2
+    assert [r["metric"] for r in rerun] == [r["metric"] for r in rows]
+    with pytest.raises(ValueError, match="other_code"):
+        execute(cfgs, path, workers=0, progress=False, other_code="maybe")
+
+
+def test_verify_rows_reports_drift(tmp_path):
+    path = tmp_path / "r.jsonl"
+    rows = execute(_configs()[:2], path, workers=0, progress=False)
+    report = verify_rows(rows)
+    assert [v["drift"] for v in report] == [0.0, 0.0] and all(v["ok"] and v["same_code"] for v in report)
+    moved = dict(rows[0], metric=rows[0]["metric"] + 0.5, code_hash="f" * 16)
+    (v,) = verify_rows([moved])
+    assert not v["ok"] and not v["same_code"] and v["drift"] == pytest.approx(0.5)
+    assert len(verify_rows(rows, sample=1, seed=3)) == 1
+
+
+def test_tuple_axes_zip_keys():
+    cfgs = expand("pose", {"steps": 2}, axes={("angle_min", "angle_max"): [(15, 35), (55, 75)], "seed": [0]})
+    assert [(c["angle_min"], c["angle_max"]) for c in cfgs] == [(15, 35), (55, 75)]

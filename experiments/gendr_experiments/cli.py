@@ -51,13 +51,38 @@ def _instance_options(p):
     g.add_argument("--squared", action="store_true")
     g.add_argument("--tconorm", default="probabilistic", metavar="NAME")
     g.add_argument("--tconorm-param", action="append", metavar="NAME=VALUE", help="e.g. p=2 (repeatable)")
-    g.add_argument("--backend", default="torch", help="gendr backend (default: %(default)s)")
-    g.add_argument("--eps", type=float, default=1e-4, help="coverage culling threshold (default: %(default)s)")
+    g.add_argument("--backend", default=None, help="gendr backend (default: the protocol's: quick torch, paper drjit)")
+    g.add_argument("--eps", type=float, default=None, help="coverage culling threshold (default: the protocol's)")
+    g.add_argument("--cutoff", type=float, default=None,
+                   help="the reference implementation's distance cut-off dist_eps (default: the protocol's: "
+                        "quick none, paper 100)")
     g.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
 
 
+def _protocol_options(p):
+    p.add_argument("--protocol", choices=("quick", "paper"), default="quick",
+                   help="named settings (docs/experiments.md, `gendr experiment protocols`); options given "
+                        "here override them")
+    p.add_argument("--data", default=None, metavar="DIR",
+                   help="directory of the paper's user-supplied files for 'paper:FILE' targets "
+                        "(default: $GENDR_PAPER_DATA or ~/.cache/gendr/paper_data)")
+
+
+def _given(a, names) -> dict:
+    """The options of ``names`` (argparse dest -> config key) the user gave (not None)."""
+    return {key: getattr(a, dest) for dest, key in names.items() if getattr(a, dest) is not None}
+
+
+def _apply_data(a):
+    if getattr(a, "data", None):
+        from .common import PAPER_DATA_ENV
+        os.environ[PAPER_DATA_ENV] = a.data
+
+
 def _instance_config(a) -> dict:
-    cfg = {"backend": a.backend, "eps": a.eps}
+    cfg = _given(a, {"backend": "backend", "eps": "eps", "cutoff": "cutoff"})
+    if getattr(a, "protocol", None):
+        cfg["protocol"] = a.protocol
     if a.instance is not None:
         cfg["instance"] = a.instance
     else:
@@ -74,20 +99,25 @@ def _print_result(res, a):
 
 # ------------------------------------------------------------------------------------------------
 
+SHAPE_OPTIONS = {"target": "target", "tau": "tau", "lr": "lr", "steps": "steps", "size": "image_size",
+                 "views": "views", "elevation": "elevation", "distance": "distance", "fov": "fov_y",
+                 "subdivisions": "subdivisions", "template": "template", "lambda_lap": "lambda_lap",
+                 "lambda_flat": "lambda_flat", "metric": "metric", "seed": "seed"}
+POSE_OPTIONS = {"target": "target", "tau_start": "tau_start", "tau_end": "tau_end", "lr": "lr", "steps": "steps",
+                "size": "image_size", "angle_min": "angle_min", "angle_max": "angle_max", "loss": "loss",
+                "pairs": "pairs"}
+
+
 def cmd_shape(a) -> int:
-    import numpy as np
-    from .shape import run_shape
+    from .shape import hard_silhouettes, run_shape, shape_cameras, shape_config
     from .figures import silhouette_frame, write_gif
+    _apply_data(a)
     if a.threads:
         import torch
         torch.set_num_threads(a.threads)
-    cfg = _instance_config(a)
-    cfg.update(target=a.target, tau=a.tau, lr=a.lr, steps=a.steps, image_size=a.size, views=a.views,
-               elevation=a.elevation, distance=a.distance, fov_y=a.fov, subdivisions=a.subdivisions,
-               lambda_lap=a.lambda_lap, lambda_flat=a.lambda_flat, seed=a.seed)
+    cfg = shape_config(_instance_config(a), **_given(a, SHAPE_OPTIONS))
     frames, cb = [], None
     if a.gif:
-        from .shape import hard_silhouettes, shape_cameras  # target silhouettes for the overlay
         def cb(step, v, sil, loss):
             if step % max(1, a.gif_every) == 0:
                 frames.append(sil.numpy())
@@ -95,11 +125,9 @@ def cmd_shape(a) -> int:
     if a.gif:
         from .common import load_target_mesh
         import torch
-        from .shape import SHAPE_DEFAULTS
-        full = dict(SHAPE_DEFAULTS, **cfg)
-        m = load_target_mesh(a.target)
+        m = load_target_mesh(cfg["target"], normalize=cfg["normalize_target"])
         tgt = hard_silhouettes(torch.tensor(m.vertices, dtype=torch.float32), torch.tensor(m.faces),
-                               shape_cameras(full), a.size, a.backend).numpy()
+                               shape_cameras(cfg), cfg["image_size"], cfg["backend"]).numpy()
         write_gif([silhouette_frame(f, tgt, a.gif_views) for f in frames], a.gif)
         print(f"wrote {a.gif} ({len(frames)} frames)", file=sys.stderr)
     if a.output_mesh:
@@ -120,25 +148,48 @@ def _write_obj(path, v, f):
 
 def cmd_pose(a) -> int:
     import numpy as np
-    from .pose import run_pose
+    from .pose import pose_config, run_pose
+    _apply_data(a)
     if a.threads:
         import torch
         torch.set_num_threads(a.threads)
-    cfg = _instance_config(a)
-    cfg.update(target=a.target, tau_start=a.tau_start, tau_end=a.tau_end, lr=a.lr, steps=a.steps,
-               image_size=a.size, angle_min=a.angle_min, angle_max=a.angle_max, loss=a.loss)
+    cfg = pose_config(_instance_config(a), **_given(a, POSE_OPTIONS))
     results = []
     for s in range(a.seed, a.seed + a.runs):
         r = run_pose(cfg, seed=s)
         results.append(r)
-        print(f"seed {s}: initial {r['initial_error']:.1f} deg -> final {r['metric']:.2f} deg "
-              f"({'success' if r['success'] else 'fail'}) in {r['seconds']:.1f} s", file=sys.stderr)
-    summary = {"runs": len(results), "success_rate": float(np.mean([r["success"] for r in results])),
-               "mean_error_deg": float(np.mean([r["metric"] for r in results])),
-               "median_error_deg": float(np.median([r["metric"] for r in results])),
-               "seconds_per_run": float(np.mean([r["seconds"] for r in results])),
-               "instance": results[0]["instance_label"]}
+        if "success_rate" in r:
+            print(f"seed {s}: {r['successes']}/{r['pairs']} pairs within {cfg['success_degrees']:g} deg "
+                  f"(median residual {r['residual_deg_median']:.2f} deg) in {r['seconds']:.1f} s", file=sys.stderr)
+        else:
+            print(f"seed {s}: initial {r['initial_error']:.1f} deg -> final {r['metric']:.2f} deg "
+                  f"({'success' if r['success'] else 'fail'}) in {r['seconds']:.1f} s", file=sys.stderr)
+    if "success_rate" in results[0]:
+        n = sum(r["pairs"] for r in results)
+        summary = {"runs": len(results), "pairs": n, "success_rate": sum(r["successes"] for r in results) / n,
+                   "success_degrees": cfg["success_degrees"]}
+    else:
+        summary = {"runs": len(results), "success_rate": float(np.mean([r["success"] for r in results])),
+                   "mean_error_deg": float(np.mean([r["metric"] for r in results])),
+                   "median_error_deg": float(np.median([r["metric"] for r in results]))}
+    summary.update(seconds_per_run=float(np.mean([r["seconds"] for r in results])),
+                   instance=results[0]["instance_label"], protocol=cfg["protocol"])
     print(json.dumps(summary, indent=2))
+    return 0
+
+
+def cmd_protocols(a) -> int:
+    """Print the presets side by side (keys where they differ first)."""
+    from .pose import POSE_PRESETS
+    from .shape import SHAPE_PRESETS
+    for name, presets in (("shape", SHAPE_PRESETS), ("pose", POSE_PRESETS)):
+        names = list(presets)
+        keys = sorted(presets[names[0]], key=lambda k: (len({repr(p[k]) for p in presets.values()}) == 1, k))
+        print(f"{name}:")
+        print(f"  {'setting':20s}" + "".join(f"{n:>24s}" for n in names))
+        for k in keys:
+            print(f"  {k:20s}" + "".join(f"{str(presets[n][k]):>24s}" for n in names))
+        print()
     return 0
 
 
@@ -192,29 +243,63 @@ def cmd_sweep(a) -> int:
     if not instances:
         print(f"{PROG}: error: choose instances with --instances and/or --dists/--tconorms", file=sys.stderr)
         return 2
-    base = _kv(a.set)
-    base.setdefault("backend", a.backend)
+    _apply_data(a)
+    from .sweep import OtherCodeError, full_config
+    base = {"protocol": a.protocol, **_kv(a.set)}
+    if a.backend:
+        base["backend"] = a.backend
+    preset = full_config(a.experiment, base)
     extra = {}
     if a.elevations:
         extra["elevation"] = _floats(a.elevations)
-    taus = _floats(a.taus) if a.taus else ([1e-1, 1e-2, 1e-3] if a.experiment == "shape" else [1e-1])
+    if a.bins:
+        extra[("angle_min", "angle_max")] = [tuple(float(x) for x in b.split("-")) for b in a.bins.split(",")
+                                             if b.strip()]
+    tau_key = EXPERIMENTS[a.experiment]
+    taus = _floats(a.taus) if a.taus else ([1e-1, 1e-2, 1e-3] if a.experiment == "shape" else [preset[tau_key]])
+    lrs = _floats(a.lrs) if a.lrs else [preset["lr"]]
     kw = dict(store=a.output, workers=a.workers, scheduler=a.scheduler, retry_errors=a.retry_errors,
-              progress=not a.quiet)
+              progress=not a.quiet, other_code=a.other_code)
     t0 = time.perf_counter()
     n0 = len(load_rows(a.output))
-    best = best_setting_search(a.experiment, instances, taus=taus, lrs=_floats(a.lrs), seeds=_ints(a.seeds),
-                               base=base, extra_axes=extra, refine=not a.no_refine,
-                               fine_steps=tuple(_floats(a.fine_steps)), **kw)
+    try:
+        best = best_setting_search(a.experiment, instances, taus=taus, lrs=lrs, seeds=_ints(a.seeds),
+                                   base=base, extra_axes=extra, refine=not a.no_refine,
+                                   fine_steps=tuple(_floats(a.fine_steps)), **kw)
+    except OtherCodeError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
     rows = load_rows(a.output)
     if a.csv:
         write_csv(rows, a.csv)
-    tau_key = EXPERIMENTS[a.experiment]
     print(f"{len(rows) - n0} new runs in {time.perf_counter() - t0:.1f} s; {len(rows)} rows in {a.output}",
           file=sys.stderr)
     print(f"{'instance':>8s}  {'label':45s} {tau_key:>10s} {'lr':>8s} {'score':>8s}")
     for inst, b in sorted(best.items(), key=lambda kv: kv[1]["score"]):
         print(f"{inst:8d}  {b['label']:45s} {b[tau_key]:10.3g} {b['lr']:8.3g} {b['score']:8.4f}")
     return 0
+
+
+def cmd_verify(a) -> int:
+    from .sweep import load_rows, verify_rows
+    _apply_data(a)
+    rows = [r for f in a.results for r in load_rows(f)]
+    if not rows:
+        print(f"{PROG}: error: no rows in {a.results}", file=sys.stderr)
+        return 2
+    report = verify_rows(rows, sample=a.sample, seed=a.seed, tolerance=a.tolerance)
+    print(f"{'key':16s} {'label':40s} {'stored':>9s} {'now':>9s} {'drift':>9s} {'tol':>6s} code")
+    for v in report:
+        fmt = lambda x: "None" if x is None else f"{x:9.4g}"
+        print(f"{v['key']:16s} {str(v['label'])[:40]:40s} {fmt(v['stored']):>9s} {fmt(v['now']):>9s} "
+              f"{v['drift']:9.3g} {v['tolerance']:6.3g} {'same' if v['same_code'] else 'other (' + str(v['stored_code']) + ')'}"
+              f"{'' if v['ok'] else '  DRIFT'}")
+    bad = [v for v in report if not v["ok"]]
+    print(f"{len(report)} rows re-run, {len(bad)} beyond tolerance, "
+          f"{sum(not v['same_code'] for v in report)} made by other code", file=sys.stderr)
+    if a.json:
+        Path(a.json).write_text(json.dumps(report, indent=1))
+    return 1 if bad else 0
 
 
 def cmd_figures(a) -> int:
@@ -251,21 +336,27 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
 
+    D = "(default: the protocol's)"
     p = sub.add_parser("shape", formatter_class=F, help="shape optimisation from 24 silhouettes (paper §5.1)",
-                       description="Deform an icosphere to match the hard silhouettes of a target from VIEWS azimuths.")
-    p.add_argument("--target", default="airplane", help="built-in scene or mesh file")
-    p.add_argument("--tau", type=float, default=0.01, help="blur width in screen units (squared instances: tau**2)")
-    p.add_argument("--lr", type=float, default=0.05)
-    p.add_argument("--steps", type=int, default=100)
-    p.add_argument("--size", type=int, default=64, help="image size (square)")
-    p.add_argument("--views", type=int, default=24)
-    p.add_argument("--elevation", type=float, default=30.0)
-    p.add_argument("--distance", type=float, default=4.0)
-    p.add_argument("--fov", type=float, default=35.0)
-    p.add_argument("--subdivisions", type=int, default=2, help="icosphere template level")
-    p.add_argument("--lambda-lap", type=float, default=0.03)
-    p.add_argument("--lambda-flat", type=float, default=0.0003)
-    p.add_argument("--seed", type=int, default=0)
+                       description="Deform a sphere to match the hard silhouettes of a target from VIEWS azimuths. "
+                                   "Settings come from --protocol (see `gendr experiment protocols`); options "
+                                   "given override them.")
+    _protocol_options(p)
+    p.add_argument("--target", default=None, help=f"built-in scene, mesh file or paper:FILE {D}")
+    p.add_argument("--tau", type=float, default=None, help=f"blur width in screen units (squared instances: tau**2) {D}")
+    p.add_argument("--lr", type=float, default=None, help=D)
+    p.add_argument("--steps", type=int, default=None, help=D)
+    p.add_argument("--size", type=int, default=None, help=f"image size (square) {D}")
+    p.add_argument("--views", type=int, default=None, help=D)
+    p.add_argument("--elevation", type=float, default=None, help=D)
+    p.add_argument("--distance", type=float, default=None, help=D)
+    p.add_argument("--fov", type=float, default=None, help=f"vertical field of view, degrees {D}")
+    p.add_argument("--template", default=None, help=f"'icosphere' (with --subdivisions) or a mesh file {D}")
+    p.add_argument("--subdivisions", type=int, default=None, help=f"icosphere template level {D}")
+    p.add_argument("--lambda-lap", type=float, default=None, help=D)
+    p.add_argument("--lambda-flat", type=float, default=None, help=D)
+    p.add_argument("--metric", choices=("final", "best"), default=None, help=f"hard IoU loss of the final mesh or best over the steps {D}")
+    p.add_argument("--seed", type=int, default=None, help=D)
     p.add_argument("--gif", default=None, metavar="OUT.gif", help="write a GIF of the silhouettes during optimisation")
     p.add_argument("--gif-every", type=int, default=2, help="record every k-th step")
     p.add_argument("--gif-views", type=int, default=6, help="views shown in the GIF")
@@ -274,21 +365,28 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_shape)
 
     p = sub.add_parser("pose", formatter_class=F, help="camera-pose optimisation with decaying tau (paper §5.2)",
-                       description="Recover the rotation of an object from its silhouette after a random "
-                                   "perturbation of 15..75 degrees; success = final error < 3 degrees.")
-    p.add_argument("--target", default="teapot_like")
-    p.add_argument("--tau-start", type=float, default=1e-1)
-    p.add_argument("--tau-end", type=float, default=1e-7)
-    p.add_argument("--lr", type=float, default=0.01)
-    p.add_argument("--steps", type=int, default=300)
-    p.add_argument("--size", type=int, default=64)
-    p.add_argument("--angle-min", type=float, default=15.0)
-    p.add_argument("--angle-max", type=float, default=75.0)
-    p.add_argument("--loss", choices=("iou", "mse"), default="iou")
+                       description="Recover a camera pose from a silhouette. quick: a rotation after a random "
+                                   "perturbation of 15..75 degrees, success < 3 degrees; paper: the paper's look-at "
+                                   "pose (distance, elevation, azimuth, view angle) for a batch of pairs in one "
+                                   "perturbation bin, success < 5 degrees (see docs/experiments.md).")
+    _protocol_options(p)
+    p.add_argument("--target", default=None, help=D)
+    p.add_argument("--tau-start", type=float, default=None, help=D)
+    p.add_argument("--tau-end", type=float, default=None, help=D)
+    p.add_argument("--lr", type=float, default=None, help=D)
+    p.add_argument("--steps", type=int, default=None, help=D)
+    p.add_argument("--size", type=int, default=None, help=D)
+    p.add_argument("--angle-min", type=float, default=None, help=f"perturbation bin, degrees {D}")
+    p.add_argument("--angle-max", type=float, default=None, help=D)
+    p.add_argument("--pairs", type=int, default=None, help=f"paper: pairs per run (one batch) {D}")
+    p.add_argument("--loss", choices=("iou", "mse"), default=None, help=D)
     p.add_argument("--seed", type=int, default=0, help="first seed")
     p.add_argument("--runs", type=int, default=1, help="number of runs (seeds seed..seed+runs-1)")
     _instance_options(p)
     p.set_defaults(func=cmd_pose)
+
+    p = sub.add_parser("protocols", help="print the named protocols (quick, paper) side by side")
+    p.set_defaults(func=cmd_protocols)
 
     p = sub.add_parser("sweep", formatter_class=F, help="resumable sweep over instances x tau x lr x seeds",
                        description="Run an experiment over a subset of the paper's grid with the paper's search: "
@@ -307,17 +405,34 @@ def build_parser() -> argparse.ArgumentParser:
                                                "Default shape 0.1,0.01,0.001; pose 0.1")
     p.add_argument("--fine-steps", default="-0.5,-0.25,0.25,0.5", help="fine grid: best_tau * 10**s")
     p.add_argument("--no-refine", action="store_true", help="skip the fine tau stage")
-    p.add_argument("--lrs", default="0.05")
+    p.add_argument("--lrs", default=None, help="learning rates (default: the protocol's lr)")
     p.add_argument("--seeds", default="0")
     p.add_argument("--elevations", default=None, help="shape: elevations (averaged like seeds)")
+    p.add_argument("--bins", default=None, metavar="A-B,...",
+                   help="pose: perturbation bins in degrees (averaged like seeds), e.g. 15-35,35-55,55-75")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="override an experiment setting, e.g. --set image_size=32 --set steps=50 --set target=chair")
-    p.add_argument("--backend", default="torch")
+    p.add_argument("--backend", default=None, help="gendr backend (default: the protocol's)")
+    p.add_argument("--other-code", choices=("refuse", "keep", "rerun"), default="refuse",
+                   help="finished rows of these runs made by other code (another source hash): refuse to "
+                        "resume, keep them as done, or rerun them")
+    _protocol_options(p)
     p.add_argument("--workers", type=int, default=None, help="local processes (default: CPU count; 0 = in-process)")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="run on a Dask cluster, e.g. tcp://host:8786")
     p.add_argument("--retry-errors", action="store_true", help="rerun rows that ended in an error")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_sweep)
+
+    p = sub.add_parser("verify", formatter_class=F, help="re-run finished rows and report drift",
+                       description="Re-run rows of results files from their stored configs and compare the metrics; "
+                                   "exit 1 when one moved beyond its tolerance (gendr_experiments.sweep.DRIFT_TOLERANCE).")
+    p.add_argument("results", nargs="+", help="JSONL results file(s)")
+    p.add_argument("--sample", type=int, default=None, help="re-run this many rows, chosen at random (default: all)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the random choice")
+    p.add_argument("--tolerance", type=float, default=None, help="absolute metric tolerance (default: per experiment)")
+    p.add_argument("--data", default=None, metavar="DIR", help="directory of the paper's files (paper:FILE)")
+    p.add_argument("--json", default=None, metavar="OUT.json", help="also write the report as JSON")
+    p.set_defaults(func=cmd_verify)
 
     p = sub.add_parser("figures", formatter_class=F, help="heatmaps and top-10%% histograms of sweep results")
     p.add_argument("results", nargs="+", help="JSONL results file(s) of `sweep`")

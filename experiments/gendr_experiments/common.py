@@ -8,19 +8,22 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import os
 import platform
 from functools import lru_cache
+from pathlib import Path
 
 import numpy as np
 import torch
 
 import gendr
-from gendr.errors import ParameterError
+from gendr.errors import InputValueError, ParameterError
 
 __all__ = ["instance_from_config", "grid_instance", "make_renderer", "renderer_tau", "load_target_mesh",
            "soft_iou_loss", "iou_loss_per_view", "mesh_laplacian", "laplacian_loss", "flatten_edges",
            "flatten_loss", "rotation_angle_deg", "axis_angle_to_matrix", "config_hash", "versions",
-           "log_tau_schedule"]
+           "log_tau_schedule", "PAPER_DATA_ENV", "paper_data_dir", "resolve_data_path", "load_template",
+           "source_hash", "provenance", "file_digest"]
 
 
 # ------------------------------------------------------------------------------------------------
@@ -59,19 +62,84 @@ def renderer_tau(width: float, squared: bool) -> float:
     return float(width) ** 2 if squared else float(width)
 
 
-def make_renderer(dist, tcn, tau, image_size, *, backend="torch", eps=1e-4, **backend_options):
-    """A silhouette-only renderer (``blend=None``): alpha in channel 3. ``backend_options`` go to the
-    backend (e.g. ``freeze=True`` for ``"drjit"``)."""
+def make_renderer(dist, tcn, tau, image_size, *, backend="torch", eps=1e-4, cutoff=None, **backend_options):
+    """A silhouette-only renderer (``blend=None``): alpha in channel 3. ``cutoff``: the GenDR reference's
+    distance cut-off (``Renderer(cutoff=...)``; None = exact). ``backend_options`` go to the backend
+    (e.g. ``freeze=True`` for ``"drjit"``)."""
     return gendr.Renderer(dist, tcn, tau=tau, image_size=image_size, backend=backend, eps=eps, blend=None,
-                          **backend_options)
+                          cutoff=cutoff, **backend_options)
 
 
-def load_target_mesh(name_or_path: str):
-    """A built-in scene (``gendr.scenes.SCENES``) or a mesh file scaled into the unit ball."""
+# ------------------------------------------------------------------------------------------------
+# data: built-in scenes, mesh files, the paper's user-supplied files ("paper:NAME")
+# ------------------------------------------------------------------------------------------------
+
+#: environment variable naming the directory that holds the paper's data files (airplane.obj,
+#: teapot.obj, sphere_642.obj, cameras.npy, ... of the GenDR repository's ``experiments/data``)
+PAPER_DATA_ENV = "GENDR_PAPER_DATA"
+PAPER_PREFIX = "paper:"
+
+
+def paper_data_dir() -> Path:
+    """``$GENDR_PAPER_DATA``, else ``~/.cache/gendr/paper_data``. gendr never ships or downloads these
+    files: the user copies them there (see docs/experiments.md)."""
+    env = os.environ.get(PAPER_DATA_ENV)
+    return Path(env).expanduser() if env else Path.home() / ".cache" / "gendr" / "paper_data"
+
+
+def resolve_data_path(name: str) -> Path:
+    """``"paper:FILE"`` -> the file in :func:`paper_data_dir`; anything else is a path. Raises
+    :class:`~gendr.errors.InputValueError` naming the file and the directory when it is missing."""
+    if name.startswith(PAPER_PREFIX):
+        d = paper_data_dir()
+        p = d / name[len(PAPER_PREFIX):]
+        if not p.is_file():
+            raise InputValueError(
+                f"{name!r}: {p} does not exist. The paper's meshes are user-supplied: copy the GenDR "
+                f"repository's experiments/data files into {d} (or point ${PAPER_DATA_ENV} at them); "
+                f"see docs/experiments.md")
+        return p
+    return Path(name)
+
+
+def file_digest(path) -> str:
+    """sha256 (first 16 hex digits) of a file's bytes: which data a row was computed on."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
+
+
+def load_target_mesh(name_or_path: str, normalize: bool = True):
+    """A built-in scene (``gendr.scenes.SCENES``) or a mesh file (a path or ``"paper:FILE"``), scaled
+    into the unit ball when ``normalize`` (the paper uses its meshes as they are: ``normalize=False``)."""
     from gendr import scenes
     if name_or_path in scenes.SCENES:
         return scenes.get_scene(name_or_path)
-    return scenes.normalize(scenes.load_mesh(name_or_path))
+    mesh = _merged(scenes.load_mesh(resolve_data_path(name_or_path)))
+    return scenes.normalize(mesh) if normalize else mesh
+
+
+def _merged(mesh):
+    """Vertices at identical positions merged (OBJ files with per-corner normals store a vertex per
+    corner), first occurrence order kept; faces re-indexed."""
+    from gendr.scenes import Mesh
+    v = np.asarray(mesh.vertices)
+    _, first, inverse = np.unique(v, axis=0, return_index=True, return_inverse=True)
+    if len(first) == len(v):
+        return mesh
+    order = np.argsort(first)                      # unique rows in order of first occurrence
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    return Mesh(v[np.sort(first)], rank[np.asarray(inverse).reshape(-1)][np.asarray(mesh.faces)])
+
+
+def load_template(spec: str, scale: float):
+    """The shape experiment's template: ``"icosphere:S"`` (gendr's icosphere, subdivisions S) or a
+    mesh file (``"paper:sphere_642.obj"``), vertices merged, times ``scale``."""
+    from gendr.scenes import Mesh, icosphere
+    if spec.startswith("icosphere:"):
+        m = icosphere(int(spec.split(":", 1)[1]))
+    else:
+        m = load_target_mesh(spec, normalize=False)
+    return Mesh(np.asarray(m.vertices) * float(scale), np.asarray(m.faces))
 
 
 # ------------------------------------------------------------------------------------------------
@@ -213,5 +281,66 @@ def config_hash(cfg: dict) -> str:
 @lru_cache(maxsize=1)
 def versions() -> dict:
     import gendr_experiments
-    return {"gendr": gendr.__version__, "gendr_experiments": gendr_experiments.__version__,
-            "torch": torch.__version__, "numpy": np.__version__, "python": platform.python_version()}
+    out = {"gendr": gendr.__version__, "gendr_experiments": gendr_experiments.__version__,
+           "torch": torch.__version__, "numpy": np.__version__, "python": platform.python_version()}
+    try:
+        import drjit
+        out["drjit"] = drjit.__version__
+    except ImportError:  # pragma: no cover - drjit is optional
+        pass
+    return out
+
+
+def _package_dir(module: str) -> Path:
+    import importlib.util
+    spec = importlib.util.find_spec(module)
+    if spec is None or not spec.submodule_search_locations:
+        raise ParameterError(f"cannot locate the source of package {module!r}")
+    return Path(list(spec.submodule_search_locations)[0])
+
+
+@lru_cache(maxsize=None)
+def source_hash(backend: str = "torch") -> str:
+    """16 hex digits of sha256 over the Python source that computes a result: the packages ``gendr``,
+    the backend's package (from its entry point) and ``gendr_experiments`` (every ``*.py``, by
+    relative path and bytes). Any edit to that code changes it; docs, tests and benchmarks do not."""
+    eps = gendr.available_backends()
+    if backend not in eps:
+        raise ParameterError(f"unknown backend {backend!r}; registered: {sorted(eps)}")
+    h = hashlib.sha256()
+    for module in ("gendr", eps[backend].value.split(":")[0].split(".")[0], "gendr_experiments"):
+        root = _package_dir(module)
+        for f in sorted(root.rglob("*.py")):
+            h.update(f"{module}/{f.relative_to(root).as_posix()}\0".encode())
+            h.update(f.read_bytes())
+            h.update(b"\0")
+    return h.hexdigest()[:16]
+
+
+@lru_cache(maxsize=1)
+def git_commit() -> str | None:
+    """The git commit of the checkout gendr runs from (``+dirty`` with uncommitted changes to
+    tracked files), or None outside a git checkout. A convenience beside :func:`source_hash`, which
+    is what resume and verify compare."""
+    import subprocess
+    root = _package_dir("gendr").parent
+    try:
+        head = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True,
+                              timeout=10, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True, timeout=10, check=True).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return head + ("+dirty" if dirty else "")
+
+
+def provenance(backend: str) -> dict:
+    """What a result row records about the code and machine that made it: versions, the source hash
+    (:func:`source_hash`), backend, device, dtype and thread counts."""
+    out = {"code_hash": source_hash(backend), "backend": backend, "device": "cpu", "dtype": "float32",
+           "torch_threads": torch.get_num_threads(), "machine": platform.machine(),
+           "git_commit": git_commit(), "versions": versions()}
+    if backend == "drjit":
+        import drjit
+        out["drjit_threads"] = drjit.thread_count()
+    return out

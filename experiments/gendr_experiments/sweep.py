@@ -28,39 +28,36 @@ from pathlib import Path
 
 import numpy as np
 
-from .common import config_hash, versions
+from gendr.errors import GendrError, ParameterError
 
-__all__ = ["EXPERIMENTS", "full_config", "expand", "run_config", "ResultStore", "execute", "load_rows",
-           "aggregate", "best_setting_search", "fine_grid", "summarize_best", "write_csv"]
+from .common import config_hash, provenance, source_hash
+
+__all__ = ["EXPERIMENTS", "OtherCodeError", "full_config", "expand", "run_config", "ResultStore", "execute", "load_rows",
+           "aggregate", "best_setting_search", "fine_grid", "summarize_best", "write_csv", "verify_rows",
+           "DRIFT_TOLERANCE"]
 
 #: experiment name -> (defaults, runner path, the config key the τ grid sets, lower_is_better aggregate)
 EXPERIMENTS = {"shape": "tau", "pose": "tau_start"}
 
 
-def _defaults(experiment: str) -> dict:
-    if experiment == "shape":
-        from .shape import SHAPE_DEFAULTS
-        return SHAPE_DEFAULTS
-    if experiment == "pose":
-        from .pose import POSE_DEFAULTS
-        return POSE_DEFAULTS
-    raise ValueError(f"unknown experiment {experiment!r}; expected one of {sorted(EXPERIMENTS)}")
-
-
 def full_config(experiment: str, overrides: dict) -> dict:
-    """The defaults of ``experiment`` with ``overrides`` applied (unknown keys are an error)."""
-    d = dict(_defaults(experiment))
-    bad = sorted(set(overrides) - set(d))
-    if bad:
-        raise ValueError(f"unknown {experiment} config keys {bad}; known: {sorted(d)}")
-    d.update(overrides)
-    d["experiment"] = experiment
-    return d
+    """The full config of one run: the preset named by ``overrides["protocol"]`` (default ``quick``)
+    of ``experiment`` with ``overrides`` applied (unknown keys are an error)."""
+    if experiment == "shape":
+        from .shape import shape_config as make
+    elif experiment == "pose":
+        from .pose import pose_config as make
+    else:
+        raise ParameterError(f"unknown experiment {experiment!r}; expected one of {sorted(EXPERIMENTS)}")
+    cfg = make(overrides)
+    cfg["experiment"] = experiment
+    return cfg
 
 
 def expand(experiment: str, base: dict | None = None, *, instances=(None,), axes: dict | None = None) -> list[dict]:
     """Full configs of the Cartesian product ``instances × axes`` (``axes``: key -> list of values,
-    e.g. ``{"tau": [1e-1, 1e-2], "lr": [0.05], "seed": [0, 1]}``), over ``base``."""
+    e.g. ``{"tau": [1e-1, 1e-2], "lr": [0.05], "seed": [0, 1]}``; a tuple of keys takes tuples of
+    values, ``{("angle_min", "angle_max"): [(15, 35), (35, 55)]}``), over ``base``."""
     axes = dict(axes or {})
     keys = list(axes)
     out = []
@@ -69,7 +66,8 @@ def expand(experiment: str, base: dict | None = None, *, instances=(None,), axes
             ov = dict(base or {})
             if inst is not None:
                 ov["instance"] = int(inst)
-            ov.update(zip(keys, values))
+            for k, v in zip(keys, values):  # a tuple of keys takes a tuple of values (e.g. a pose bin)
+                ov.update(zip(k, v) if isinstance(k, tuple) else [(k, v)])
             out.append(full_config(experiment, ov))
     return out
 
@@ -90,14 +88,28 @@ def _clean(x):
     return x
 
 
-def run_config(cfg: dict) -> dict:
-    """Run one config (in any process) and return its result row. One torch thread, so a run gives
-    the same numbers wherever it runs. Exceptions become rows with ``status="error"``."""
+def _single_thread():
+    """One thread in torch and Dr.Jit: a run gives the same numbers wherever it runs (Dr.Jit's
+    multi-threaded scatter-adds sum in a varying order)."""
     import torch
     torch.set_num_threads(1)
+    try:
+        import drjit
+        drjit.set_thread_count(1)
+    except ImportError:  # pragma: no cover - drjit is optional
+        pass
+
+
+def run_config(cfg: dict) -> dict:
+    """Run one config (in any process) and return its result row: the metrics, the config, and the
+    provenance (:func:`~gendr_experiments.common.provenance`: versions, source hash, backend,
+    device, dtype, threads). One thread, so a run gives the same numbers wherever it runs.
+    Exceptions become rows with ``status="error"``."""
+    _single_thread()
     from .common import instance_from_config
     t0 = time.perf_counter()
-    row = {"key": config_hash(cfg), "experiment": cfg["experiment"], "instance": cfg.get("instance")}
+    row = {"key": config_hash(cfg), "experiment": cfg["experiment"], "instance": cfg.get("instance"),
+           "protocol": cfg.get("protocol")}
     try:
         dist, tcn, label = instance_from_config(cfg)
         row.update(label=label, distribution=dist.label().replace("+sq", ""), squared=bool(dist.squared),
@@ -114,14 +126,19 @@ def run_config(cfg: dict) -> dict:
         row["status"] = "ok"
     except Exception as exc:  # recorded, not raised: one bad instance must not kill a 1,242-run sweep
         row.update(status="error", error=f"{type(exc).__name__}: {exc}", metric=None)
-    for k in ("tau", "tau_start", "lr", "seed", "elevation", "target", "image_size", "steps"):
+    for k in ("tau", "tau_start", "lr", "seed", "elevation", "target", "image_size", "steps", "bin"):
         if k in cfg:
             row[k] = cfg[k]
     row["seconds"] = time.perf_counter() - t0
     row["config"] = cfg
-    row["versions"] = versions()
+    row["provenance"] = provenance(cfg.get("backend", "torch"))
+    row["code_hash"] = row["provenance"]["code_hash"]
     row["finished_at"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
     return _clean(row)
+
+
+class OtherCodeError(GendrError, RuntimeError):
+    """A results file holds finished rows of the requested configs that other code made."""
 
 
 class ResultStore:
@@ -201,19 +218,40 @@ class _Progress:
         self.stream.flush()
 
 
+OTHER_CODE = ("refuse", "keep", "rerun")
+
+
 def execute(configs, store: ResultStore | str, *, workers: int | None = None, scheduler=None,
-            progress: bool = True, retry_errors: bool = False, stream=None) -> list[dict]:
+            progress: bool = True, retry_errors: bool = False, other_code: str = "refuse",
+            stream=None) -> list[dict]:
     """Run every config whose key is not yet in ``store``; append each row as it finishes.
 
     ``scheduler``: None (a local process pool with ``workers`` processes, default ``os.cpu_count()``;
     ``workers=0`` runs in this process), a Dask scheduler address, or a ``distributed.Client``.
+    ``other_code``: what to do with finished rows of these configs whose ``code_hash`` differs from
+    the code here (:func:`~gendr_experiments.common.source_hash`; rows without one count as other
+    code): ``"refuse"`` (default) raises :class:`OtherCodeError` before running anything, ``"keep"``
+    counts them as done (each row still records the code that made it), ``"rerun"`` runs them again
+    (the new row replaces the old one when read).
     Returns the rows of all ``configs`` (finished earlier or now).
     """
+    if other_code not in OTHER_CODE:
+        raise ParameterError(f"other_code={other_code!r} must be one of {OTHER_CODE}")
     store = store if isinstance(store, ResultStore) else ResultStore(store)
-    done = store.done_keys(retry_errors=retry_errors)
     keyed = {}
     for c in configs:
         keyed.setdefault(config_hash(c), c)
+    finished = {r["key"]: r for r in store.rows()
+                if r["key"] in keyed and not (retry_errors and r.get("status") == "error")}
+    stale = {k: r.get("code_hash") for k, r in finished.items()
+             if r.get("code_hash") != source_hash(keyed[k].get("backend", "torch"))}
+    if stale and other_code == "refuse":
+        here = sorted({source_hash(keyed[k].get("backend", "torch")) for k in stale})
+        raise OtherCodeError(
+            f"{len(stale)} of the {len(finished)} finished rows of these runs in {store.path} were made by "
+            f"other code (code_hash {sorted(map(str, set(stale.values())))}; this code: {here}). Pass "
+            f"other_code='keep' (CLI --other-code keep) to count them as done, or 'rerun' to run them again")
+    done = set(finished) - (set(stale) if other_code == "rerun" else set())
     todo = [(k, c) for k, c in keyed.items() if k not in done]
     bar = _Progress(len(todo), len(keyed) - len(todo), stream) if progress and todo else None
 
@@ -252,16 +290,22 @@ def execute(configs, store: ResultStore | str, *, workers: int | None = None, sc
 # ------------------------------------------------------------------------------------------------
 
 def aggregate(rows) -> dict:
-    """Mean over seeds (and elevations) of the runs of one setting. ``score``: lower is better —
-    the mean hard IoU loss (shape) or the failure rate 1 − success rate, ties broken by mean error
-    (pose). Failed/non-finite runs count as the worst value (IoU loss 1, pose failure)."""
+    """Mean over seeds (and elevations, bins) of the runs of one setting. ``score``: lower is better —
+    the mean hard IoU loss (shape) or the failure rate 1 − success rate over all pairs, ties broken
+    by the mean error (pose). Failed/non-finite runs count as the worst value (IoU loss 1, every
+    pair failed)."""
     rows = list(rows)
     exp = rows[0]["experiment"]
     vals = [r["metric"] if r.get("metric") is not None else (1.0 if exp == "shape" else 180.0) for r in rows]
     out = {"n": len(rows), "mean_metric": float(np.mean(vals)), "seconds": float(np.mean([r["seconds"] for r in rows]))}
     if exp == "pose":
-        sr = float(np.mean([bool(r.get("success")) for r in rows]))
-        out.update(success_rate=sr, score=(1.0 - sr) + 1e-6 * out["mean_metric"] / 180.0)
+        if any("pairs" in r for r in rows):  # lookat rows: a batch of pairs each
+            pairs = sum(int(r.get("pairs") or r["config"].get("pairs", 1)) for r in rows)
+            sr = sum(int(r.get("successes") or 0) for r in rows) / pairs
+            out.update(pairs=pairs, success_rate=sr, score=1.0 - sr)
+        else:
+            sr = float(np.mean([bool(r.get("success")) for r in rows]))
+            out.update(success_rate=sr, score=(1.0 - sr) + 1e-6 * out["mean_metric"] / 180.0)
     else:
         out["score"] = out["mean_metric"]
     return out
@@ -311,3 +355,42 @@ def summarize_best(rows, experiment: str | None = None) -> dict:
         if inst not in best or agg["score"] < best[inst]["score"]:
             best[inst] = agg
     return best
+
+
+# ------------------------------------------------------------------------------------------------
+# drift: re-run finished rows
+# ------------------------------------------------------------------------------------------------
+
+#: how far a re-run's metric may move from the stored one before ``verify`` calls it drift. Shape:
+#: absolute hard IoU loss (the search ranks settings by mean differences of ~0.01 and more). Pose:
+#: absolute failure rate of a batch (lookat) or the angular error in degrees (rotation). Same code
+#: on one thread reproduces rows exactly; these bounds admit floating-point reorderings, which
+#: move trajectories a little over 100-1,000 Adam steps (docs/experiments.md, "Provenance").
+DRIFT_TOLERANCE = {"shape": 0.01, "pose_lookat": 0.05, "pose_rotation": 1.0}
+
+
+def drift_tolerance(row: dict) -> float:
+    if row["experiment"] == "shape":
+        return DRIFT_TOLERANCE["shape"]
+    return DRIFT_TOLERANCE["pose_lookat" if "pairs" in row else "pose_rotation"]
+
+
+def verify_rows(rows, *, sample: int | None = None, seed: int = 0, tolerance: float | None = None) -> list[dict]:
+    """Re-run ``sample`` rows (all when None; a seeded random choice otherwise) from their stored
+    configs and compare the metrics. Returns one dict per row: ``key``, ``label``, ``stored``, ``now``,
+    ``drift`` (absolute), ``tolerance``, ``ok``, ``same_code`` (the stored code hash equals this
+    code's), ``seconds``. Rows that ended in an error are skipped."""
+    rows = [r for r in rows if r.get("status") == "ok"]
+    if sample is not None and sample < len(rows):
+        pick = np.random.default_rng(seed).choice(len(rows), size=sample, replace=False)
+        rows = [rows[i] for i in sorted(pick)]
+    out = []
+    for r in rows:
+        now = run_config(r["config"])
+        tol = drift_tolerance(r) if tolerance is None else float(tolerance)
+        a, b = r.get("metric"), now.get("metric")
+        drift = abs(a - b) if (a is not None and b is not None) else (0.0 if a is None and b is None else math.inf)
+        out.append({"key": r["key"], "label": r.get("label"), "stored": a, "now": b, "drift": drift, "tolerance": tol,
+                    "ok": drift <= tol, "same_code": r.get("code_hash") == now["code_hash"],
+                    "stored_code": r.get("code_hash"), "code": now["code_hash"], "seconds": now["seconds"]})
+    return out
