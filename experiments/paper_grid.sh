@@ -7,11 +7,11 @@
 #
 # Needs the paper's meshes in $GENDR_PAPER_DATA (default ~/.cache/gendr/paper_data; see
 # docs/experiments.md). WORKERS (default 2) local processes, one thread each; SCHEDULER=tcp://host:8786
-# runs on a Dask cluster instead.
+# runs on a Dask cluster instead; RESULTS (default experiments/results) is where the rows go.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 GENDR="${GENDR:-.venv/bin/gendr}"
-RESULTS=experiments/results
+RESULTS="${RESULTS:-experiments/results}"
 WORKERS="${WORKERS:-2}"
 RUN=(--workers "$WORKERS" --other-code keep -q)
 [[ -n "${SCHEDULER:-}" ]] && RUN=(--scheduler "$SCHEDULER" --other-code keep -q)
