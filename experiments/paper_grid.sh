@@ -10,7 +10,7 @@
 # runs on a Dask cluster instead; RESULTS (default experiments/results) is where the rows go.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
-GENDR="${GENDR:-.venv/bin/gendr}"
+GENDR="${GENDR:-.venv/bin/gendr}"   # a command (may have words: "python -m gendr.cli")
 RESULTS="${RESULTS:-experiments/results}"
 WORKERS="${WORKERS:-2}"
 RUN=(--workers "$WORKERS" --other-code keep -q)
@@ -23,11 +23,11 @@ shape)
     COMMON=(--experiment shape --protocol paper --taus 0.1,0.01,0.001 --fine-steps=-0.5,0.5 --seeds 0
             -o "$RESULTS/paper_shape_grid.jsonl")
     # the five T-conorms of the pose sweep first (every distribution, plain and squared), then the rest
-    "$GENDR" experiment sweep "${COMMON[@]}" --dists all --tconorms "$FIVE" "${RUN[@]}"
-    "$GENDR" experiment sweep "${COMMON[@]}" --instances all "${RUN[@]}"
+    $GENDR experiment sweep "${COMMON[@]}" --dists all --tconorms "$FIVE" "${RUN[@]}"
+    $GENDR experiment sweep "${COMMON[@]}" --instances all "${RUN[@]}"
     ;;
 pose)
-    "$GENDR" experiment sweep --experiment pose --protocol paper --dists all --variants plain --tconorms "$FIVE" \
+    $GENDR experiment sweep --experiment pose --protocol paper --dists all --variants plain --tconorms "$FIVE" \
         --bins 15-35,35-55,55-75 --set pairs=17 --seeds 0 --no-refine \
         -o "$RESULTS/paper_pose_grid.jsonl" "${RUN[@]}"
     ;;
