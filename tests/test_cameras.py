@@ -189,6 +189,28 @@ def test_batched_cameras_equal_separate_renders():
         assert (batched[k] - single[0]).abs().max() < 1e-12, k
 
 
+@pytest.mark.parametrize("backend", ["torch", "drjit"])
+def test_batched_lens_parameters_equal_separate_renders(backend):
+    """A batch of fields of view (and of orthographic magnifications) with a batch of orbit eyes
+    (torch used to broadcast [B, 1] lens parameters against [B, F, K] corners and fail)."""
+    if backend == "drjit":
+        pytest.importorskip("drjit")
+    v, f, c = mesh()
+    r = gendr.Renderer("logistic", "probabilistic", tau=0.02, image_size=(H, W), backend=backend)
+    az = torch.tensor([10.0, 70.0, -40.0], dtype=DT)
+    fov = torch.tensor([30.0, 50.0, 65.0], dtype=DT)
+    mag = torch.tensor([1.2, 1.5, 0.9], dtype=DT)
+    for batched_cam, single in (
+            (gendr.orbit_camera(az, 20.0, 3.0, fov_y=fov),
+             lambda k: gendr.orbit_camera(float(az[k]), 20.0, 3.0, fov_y=float(fov[k]))),
+            (gendr.orbit_camera(az, 20.0, 3.0, orthographic=True, ymag=mag),
+             lambda k: gendr.orbit_camera(float(az[k]), 20.0, 3.0, orthographic=True, ymag=float(mag[k])))):
+        batched = r.render(v, f, batched_cam, vertex_colors=c)
+        for k in range(3):
+            one = r.render(v, f, single(k), vertex_colors=c)
+            assert (batched[k] - one[0]).abs().max() < 1e-6, k
+
+
 @pytest.mark.parametrize("kind", ["eye", "fov_y", "orbit", "intrinsics", "xmag"])
 def test_gradients_flow_to_camera_parameters(kind):
     v, f, c = mesh()

@@ -77,7 +77,9 @@ class Faces:
 
 
 def _screen(camera, P, H, W, xv, yv, zv):
-    sx, sy, ox, oy = camera.ndc_affine(ops, P, H, W)
+    """View-space polygon corners ``[B, F, K]`` -> screen units. Lens parameters come as [Bc, 1]
+    (the per-vertex layout): one more axis so a batch of them (e.g. fov_y [B]) meets the corners'."""
+    sx, sy, ox, oy = (v[..., None] if isinstance(v, torch.Tensor) else v for v in camera.ndc_affine(ops, P, H, W))
     if camera.orthographic:
         nx, ny = sx * xv + ox, sy * yv + oy
     else:
