@@ -590,8 +590,17 @@ def alpha_sums(s, fc, T, ops, pix, tau):
 
 
 class _Ctx:
+    """What AlphaSum needs besides its inputs. It must hold no AD-attached array: the AD graph keeps
+    the op (and so this) alive, and an attached array here (the faces' corners, or the sums S that
+    the op outputs) would close a reference cycle through C++ that Python's collector cannot see —
+    every render leaked its graph (~4 MB per shape step) until the process ended."""
+
     def __init__(self, s, fc, T, ops, pix, tau_grad, resid):
-        self.parts, self.tau_grad, self.nsat, self.resid = (s, fc, T, ops, pix), tau_grad, None, resid
+        edges = Faces()  # the detached per-face data the loops read
+        edges.K, edges.Xd, edges.Yd, edges.orient, edges.cull_lo = fc.K, fc.Xd, fc.Yd, fc.orient, fc.cull_lo
+        edges.grad_xy = bool(fc.ad) and dr.grad_enabled(fc.Xall)
+        edges.n_corners = dr.width(fc.Xall) if fc.ad else 1
+        self.parts, self.tau_grad, self.nsat, self.resid = (s, edges, T, ops, pix), tau_grad, None, resid
 
 
 class AlphaSum(dr.CustomOp):
@@ -628,12 +637,12 @@ class AlphaSum(dr.CustomOp):
         Float = T.Float
         tau = dr.detach(self.tau)
         x_eps, x_cut = dist.argument_threshold(s.eps), s.cutoff_argument(ops, tau)
-        want_xy = dr.grad_enabled(fc.Xall) if fc.ad else False
+        want_xy = fc.grad_xy
         want_tau = self.ctx.tau_grad
         delta = [Float(g) for g in self.grad_out()]
         delta = [g if dr.width(g) == pix.n else dr.zeros(Float, pix.n) + g for g in delta]
-        gX = dr.zeros(Float, dr.width(fc.Xall)) if want_xy else None
-        gY = dr.zeros(Float, dr.width(fc.Yall)) if want_xy else None
+        gX = dr.zeros(Float, fc.n_corners) if want_xy else None
+        gY = dr.zeros(Float, fc.n_corners) if want_xy else None
 
         def body(w, bits, gt):
             f, w, bits = pix.next_face(w, bits)
