@@ -302,6 +302,22 @@ def cmd_verify(a) -> int:
     return 1 if bad else 0
 
 
+def cmd_findings(a) -> int:
+    from .findings import findings_markdown, pose_similarity, shape_findings
+    from .sweep import load_rows
+    shape = [r for f in a.results for r in load_rows(f) if r["experiment"] == "shape"]
+    pose = [r for f in (a.pose or []) for r in load_rows(f) if r["experiment"] == "pose"]
+    if not shape:
+        print(f"{PROG}: error: no shape rows in {a.results}", file=sys.stderr)
+        return 2
+    found = shape_findings(shape, noise=a.noise)
+    if pose:
+        found.append(pose_similarity(shape, pose))
+    print(f"{len(shape)} shape rows" + (f", {len(pose)} pose rows" if pose else "") + "\n")
+    print(findings_markdown(found))
+    return 0
+
+
 def cmd_figures(a) -> int:
     from .figures import make_figures
     from .sweep import load_rows
@@ -433,6 +449,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--data", default=None, metavar="DIR", help="directory of the paper's files (paper:FILE)")
     p.add_argument("--json", default=None, metavar="OUT.json", help="also write the report as JSON")
     p.set_defaults(func=cmd_verify)
+
+    p = sub.add_parser("findings", formatter_class=F, help="the paper's §5 findings checked against sweep rows",
+                       description="For each qualitative finding of the paper's §5.1/§5.2: reproduced, contradicted, "
+                                   "within noise or not testable, with the numbers (a Markdown table).")
+    p.add_argument("results", nargs="+", help="shape sweep JSONL file(s)")
+    p.add_argument("--pose", nargs="*", default=None, help="pose sweep JSONL file(s) (for 'pose similar to shape')")
+    p.add_argument("--noise", type=float, default=0.03, help="single-run noise of the shape metric (see docs)")
+    p.set_defaults(func=cmd_findings)
 
     p = sub.add_parser("figures", formatter_class=F, help="heatmaps and top-10%% histograms of sweep results")
     p.add_argument("results", nargs="+", help="JSONL results file(s) of `sweep`")

@@ -1,0 +1,202 @@
+"""The paper's qualitative findings (§5.1, §5.2) checked against sweep results.
+
+Each finding is a comparison of mean best scores (lower is better: shape = best hard IoU loss, pose =
+failure rate) between groups of instances, always over the cells both groups have (the same T-conorm
+columns, the same variants), so a partial sweep compares like with like. A verdict needs the
+difference to exceed a noise margin: ``noise / sqrt(n)`` with ``n`` the number of paired cells and
+``noise`` the drift of a single run under floating-point reordering (0.03 for shape, from
+docs/experiments.md "Provenance and drift"; one pair of a batch for pose). Verdicts: ``reproduced``,
+``contradicted``, ``within noise`` (the difference is smaller than the margin) or ``not testable``
+(no cells to compare).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .figures import grid_labels, score_matrix
+from .sweep import summarize_best
+
+__all__ = ["BLOCKS", "Finding", "shape_findings", "pose_similarity", "findings_markdown"]
+
+#: the paper's blocks of distributions (rows of its heatmaps), by grid row label
+BLOCKS = {
+    "finite support": ("uniform", "cubic_hermite", "wigner_semicircle"),
+    "exponential decay": ("gaussian", "laplace", "logistic", "hyperbolic_secant"),
+    "linear decay": ("cauchy", "reciprocal"),
+    "levy": ("levy", "levy rev"),
+}
+PLAIN, SQUARED = 0, 1
+
+
+@dataclass
+class Finding:
+    claim: str
+    verdict: str
+    detail: str
+
+
+def _rows(labels):
+    dl, _ = grid_labels()
+    return [dl.index(x) for x in labels]
+
+
+def _cols(labels):
+    _, tl = grid_labels()
+    return [tl.index(x) for x in labels]
+
+
+def _compare(claim, a, b, noise, what_a, what_b):
+    """``a`` should be lower (better) than ``b``: both arrays of the same cells (NaN where not run)."""
+    ok = np.isfinite(a) & np.isfinite(b)
+    n = int(ok.sum())
+    if n == 0:
+        return Finding(claim, "not testable", f"no cells with both {what_a} and {what_b}")
+    ma, mb = float(a[ok].mean()), float(b[ok].mean())
+    margin = noise / math.sqrt(n)
+    diff = mb - ma
+    verdict = "reproduced" if diff > margin else "contradicted" if diff < -margin else "within noise"
+    return Finding(claim, verdict, f"{what_a} {ma:.3f} vs {what_b} {mb:.3f} over {n} paired cells "
+                                   f"(difference {diff:+.3f}, margin {margin:.3f})")
+
+
+def shape_findings(rows, noise: float = 0.03) -> list[Finding]:
+    """The paper's §5.1 findings, each with its verdict on ``rows`` (shape sweep rows)."""
+    best = summarize_best([r for r in rows if r.get("instance") is not None], "shape")
+    M = score_matrix(best)  # [2, 23, 27]
+    dl, tl = grid_labels()
+    out = []
+    allrows = range(M.shape[1])
+
+    # squared worse, except Cauchy / reciprocal
+    light = [i for i, lab in enumerate(dl) if lab not in ("cauchy", "reciprocal")]
+    out.append(_compare("squared worse than plain (all but Cauchy, reciprocal)",
+                        M[PLAIN, light], M[SQUARED, light], noise, "plain", "squared"))
+    heavy = _rows(("cauchy", "reciprocal"))
+    out.append(_compare("... but squared better for Cauchy and reciprocal",
+                        M[SQUARED, heavy], M[PLAIN, heavy], noise, "squared", "plain"))
+
+    def block_vs_rest(name, better):
+        inb = _rows(BLOCKS[name])
+        rest = [i for i in allrows if i not in inb]
+        a = np.nanmean(M[:, inb], axis=1)        # [2, 27] block mean per cell column
+        b = np.nanmean(M[:, rest], axis=1)
+        a = np.where(np.isfinite(M[:, inb]).all(axis=1), a, np.nan)
+        b = np.where(np.isfinite(M[:, rest]).any(axis=1), b, np.nan)
+        if better:
+            return _compare(f"{name} block good (better than the other distributions)", a, b, noise,
+                            name, "others")
+        return _compare(f"{name} block weak (worse than the other distributions)", b, a, noise, "others", name)
+
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # nanmean of all-NaN columns: NaN, as wanted
+        out.append(block_vs_rest("finite support", better=False))
+        out.append(block_vs_rest("exponential decay", better=True))
+        out.append(block_vs_rest("linear decay", better=False))
+        # Lévy worst: each Lévy row worse than every other row's mean over the same cells
+        lev = _rows(BLOCKS["levy"])
+        others = [i for i in allrows if i not in lev]
+        means = {i: np.nanmean(M[:, i]) for i in allrows if np.isfinite(M[:, i]).any()}
+        if any(i in means for i in lev) and any(i in means for i in others):
+            worst_other = max((means[i], dl[i]) for i in others if i in means)
+            lv = {dl[i]: means[i] for i in lev if i in means}
+            verdict = "reproduced" if min(lv.values()) > worst_other[0] + noise / math.sqrt(M.shape[2]) else \
+                "contradicted"
+            out.append(Finding("Lévy worst", verdict, f"row means {', '.join(f'{k} {v:.3f}' for k, v in lv.items())}; "
+                                                      f"worst other row {worst_other[1]} {worst_other[0]:.3f} "
+                                                      f"(rows over the cells each has run)"))
+        else:
+            out.append(Finding("Lévy worst", "not testable", "no Lévy rows"))
+        # competitive: gumbel_min, exponential rev, gamma rev rows vs the exponential block
+        comp = _rows(("gumbel_min", "exponential rev", "gamma(0.5) rev", "gamma(2) rev", "gamma(3) rev", "gamma(5) rev"))
+        expo = _rows(BLOCKS["exponential decay"])
+        a = np.where(np.isfinite(M[:, comp]).all(axis=1), np.nanmean(M[:, comp], axis=1), np.nan)
+        b = np.where(np.isfinite(M[:, expo]).all(axis=1), np.nanmean(M[:, expo], axis=1), np.nan)
+        f = _compare("Gumbel-min, reversed exponential, reversed gamma competitive (vs the exponential block)",
+                     a, b, noise, "these", "exponential block")
+        # competitive = not clearly worse: better or within the margin both count
+        f.verdict = {"within noise": "reproduced", "not testable": "not testable"}.get(f.verdict, f.verdict)
+        out.append(f)
+        # gamma best among the asymmetric distributions
+        asym = [i for i, lab in enumerate(dl) if lab.startswith(("gumbel", "exponential", "gamma", "levy"))]
+        am = {dl[i]: float(np.nanmean(M[:, i])) for i in asym if np.isfinite(M[:, i]).any()}
+        if am:
+            top = min(am, key=am.get)
+            out.append(Finding("gamma best among the asymmetric distributions",
+                               "reproduced" if top.startswith("gamma") else "contradicted",
+                               "best asymmetric rows: " + ", ".join(f"{k} {am[k]:.3f}" for k in sorted(am, key=am.get)[:4])))
+        else:
+            out.append(Finding("gamma best among the asymmetric distributions", "not testable", "no asymmetric rows"))
+
+        # T-conorm columns: each against the median column over the same cells
+        def column_vs_median(labels, claim, good):
+            cols = [tl.index(x) for x in labels if x in tl]
+            present = [j for j in range(M.shape[2]) if np.isfinite(M[:, :, j]).any()]
+            if not cols or not any(j in present for j in cols) or len(present) < 3:
+                return Finding(claim, "not testable", "too few T-conorm columns run")
+            med = np.nanmedian(M[:, :, present], axis=2)  # [2, 23] median column per cell row
+            a = np.nanmean(M[:, :, [j for j in cols if j in present]], axis=2)
+            if good:
+                return _compare(claim, a, med, noise, "/".join(labels), "median column")
+            return _compare(claim, med, a, noise, "median column", "/".join(labels))
+
+        out.append(column_vs_median(["max"], "max poor", good=False))
+        out.append(column_vs_median(["average"], "average poor", good=False))
+        out.append(column_vs_median(["yager(4)", "aczel_alsina(2)", "aczel_alsina(4)", "dombi(2)", "dombi(4)",
+                                     "schweizer_sklar(-2)", "schweizer_sklar(-4)"],
+                                    "Y4, A2, A4, D2, D4, SS-2, SS-4 poor", good=False))
+        out.append(column_vs_median(["yager(2)", "dombi(0.5)"], "Y2 and D0.5 best T-conorms", good=True))
+        pe = M[:, :, _cols(["probabilistic", "einstein"])]
+        ok = np.isfinite(pe).all(axis=-1)
+        if ok.any():
+            d = np.abs(pe[..., 0] - pe[..., 1])[ok]
+            n = int(ok.sum())
+            margin = noise / math.sqrt(n)
+            out.append(Finding("probabilistic ≈ Einstein", "reproduced" if d.mean() <= noise else "contradicted",
+                               f"mean |difference| {d.mean():.3f} over {n} cells (single-run noise {noise}; "
+                               f"signed mean {float((pe[..., 0] - pe[..., 1])[ok].mean()):+.3f}, margin {margin:.3f})"))
+        else:
+            out.append(Finding("probabilistic ≈ Einstein", "not testable", "no cells with both"))
+        # gamma(0.5) reversed best overall
+        if best and np.isfinite(M[:, dl.index("gamma(0.5) rev")]).any():
+            order = sorted(best.items(), key=lambda kv: kv[1]["score"])
+            top = order[0][1]
+            g = dl.index("gamma(0.5) rev")
+            rm = {dl[i]: float(np.nanmean(M[:, i])) for i in allrows if np.isfinite(M[:, i]).any()}
+            best_row = min(rm, key=rm.get)
+            verdict = "reproduced" if best_row == "gamma(0.5) rev" else "contradicted"
+            if np.isfinite(M[:, g]).any() and abs(rm.get("gamma(0.5) rev", np.inf) - rm[best_row]) <= noise / math.sqrt(
+                    int(np.isfinite(M[:, g]).sum())) and verdict == "contradicted":
+                verdict = "within noise"
+            out.append(Finding("gamma(0.5) reversed best overall", verdict,
+                               f"best instance {top['label']} {top['score']:.3f}; best row mean {best_row} "
+                               f"{rm[best_row]:.3f}; gamma(0.5) rev {rm.get('gamma(0.5) rev', float('nan')):.3f}"))
+        else:
+            out.append(Finding("gamma(0.5) reversed best overall", "not testable", "no gamma(0.5) rev row"))
+    return out
+
+
+def pose_similarity(shape_rows, pose_rows) -> Finding:
+    """'pose similar to shape': Spearman rank correlation of the best scores of the instances both
+    sweeps ran."""
+    s = summarize_best([r for r in shape_rows if r.get("instance") is not None], "shape")
+    p = summarize_best([r for r in pose_rows if r.get("instance") is not None], "pose")
+    common = sorted(set(s) & set(p))
+    claim = "pose optimisation behaves like shape optimisation"
+    if len(common) < 5:
+        return Finding(claim, "not testable", f"{len(common)} instances in both sweeps")
+    a = np.argsort(np.argsort([s[i]["score"] for i in common]))
+    b = np.argsort(np.argsort([p[i]["score"] for i in common]))
+    rho = float(np.corrcoef(a, b)[0, 1])
+    verdict = "reproduced" if rho > 0.5 else "contradicted" if rho < 0.2 else "partly"
+    return Finding(claim, verdict, f"Spearman rank correlation {rho:.2f} over {len(common)} instances")
+
+
+def findings_markdown(findings) -> str:
+    lines = ["| finding (paper §5) | verdict | numbers |", "|---|---|---|"]
+    for f in findings:
+        lines.append(f"| {f.claim} | **{f.verdict}** | {f.detail} |")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,68 @@
+"""gendr_experiments.findings: verdicts follow the data (synthetic sweep rows with a known pattern)."""
+import numpy as np
+
+from gendr_experiments.figures import grid_labels
+from gendr_experiments.findings import findings_markdown, pose_similarity, shape_findings
+
+DL, TL = grid_labels()
+NT = len(TL)
+
+
+def _row(d, sq, t, score, experiment="shape"):
+    inst = (d * 2 + sq) * NT + t
+    return {"key": f"{experiment}-{inst}", "experiment": experiment, "instance": inst, "label": f"{DL[d]}|{TL[t]}",
+            "tau": 0.01, "tau_start": 0.1, "lr": 0.03, "metric": score, "seconds": 1.0, "status": "ok",
+            "success": score < 0.5}
+
+
+def _grid(score, cols=range(NT)):
+    return [_row(d, sq, t, score(d, sq, t)) for d in range(len(DL)) for sq in (0, 1) for t in cols]
+
+
+def _verdicts(rows):
+    return {f.claim: f.verdict for f in shape_findings(rows)}
+
+
+def test_verdicts_follow_a_pattern_and_its_opposite():
+    g05 = DL.index("gamma(0.5) rev")
+
+    def paperlike(d, sq, t):
+        s = 0.3 + 0.1 * sq * (DL[d] not in ("cauchy", "reciprocal")) - 0.1 * sq * (DL[d] in ("cauchy", "reciprocal"))
+        s += 0.2 * (DL[d] in ("levy", "levy rev")) + 0.1 * (TL[t] == "max") - 0.2 * (d == g05)
+        return s
+
+    v = _verdicts(_grid(paperlike))
+    assert v["squared worse than plain (all but Cauchy, reciprocal)"] == "reproduced"
+    assert v["... but squared better for Cauchy and reciprocal"] == "reproduced"
+    assert v["Lévy worst"] == "reproduced"
+    assert v["max poor"] == "reproduced"
+    assert v["gamma(0.5) reversed best overall"] == "reproduced"
+    assert v["probabilistic ≈ Einstein"] == "reproduced"
+
+    opposite = _verdicts(_grid(lambda d, sq, t: 0.5 - 0.1 * sq - 0.2 * (DL[d] in ("levy", "levy rev"))
+                               - 0.1 * (TL[t] == "max")))
+    assert opposite["squared worse than plain (all but Cauchy, reciprocal)"] == "contradicted"
+    assert opposite["Lévy worst"] == "contradicted"
+    assert opposite["max poor"] == "contradicted"
+
+
+def test_partial_sweeps_say_not_testable_or_within_noise():
+    rng = np.random.default_rng(0)
+    rows = _grid(lambda d, sq, t: 0.3 + 0.001 * rng.standard_normal(), cols=[0, 1, 2])  # max, prob, einstein
+    v = _verdicts(rows)
+    assert v["Y4, A2, A4, D2, D4, SS-2, SS-4 poor"] == "not testable"
+    assert v["squared worse than plain (all but Cauchy, reciprocal)"] == "within noise"
+    assert v["average poor"] == "not testable"
+    assert "| Lévy worst |" in findings_markdown(shape_findings(rows))
+    assert v["... but squared better for Cauchy and reciprocal"] == "within noise"
+    assert _verdicts(_grid(lambda d, sq, t: 0.3, cols=[1]))["max poor"] == "not testable"
+
+
+def test_pose_similarity_rank_correlation():
+    shape = _grid(lambda d, sq, t: 0.1 * d + 0.01 * t, cols=[0, 1, 2, 13, 19])
+    pose = [dict(r, experiment="pose", metric=r["metric"], success=False, key="p" + r["key"]) for r in shape]
+    # pose score = failure rate: make it follow the shape ranking
+    for r in pose:
+        r["pairs"], r["successes"] = 10, int(10 - 10 * r["metric"] / 2.5)
+    assert pose_similarity(shape, pose).verdict == "reproduced"
+    assert pose_similarity(shape[:2], pose[:2]).verdict == "not testable"
