@@ -172,10 +172,16 @@ def make_figures(rows, outdir, *, experiment=None, fraction=0.1) -> list[Path]:
         best = summarize_best([r for r in rows if r["experiment"] == exp and r.get("instance") is not None], exp)
         if not best:
             continue
-        what = "hard IoU loss" if exp == "shape" else "failure rate (1 − success within 3°)"
+        exp_rows = [r for r in rows if r["experiment"] == exp]
+        lookat = any("pairs" in r for r in exp_rows)
+        if exp == "shape":
+            what = "hard IoU loss"
+        else:
+            deg = sorted({r.get("config", {}).get("success_degrees", 3.0) for r in exp_rows})
+            what = f"failure rate (1 − success within {'/'.join(f'{d:g}' for d in deg)}°)"
         written.append(plot_heatmap(best, outdir / f"{exp}_heatmap.png",
                                     title=f"{exp}: best {what} per instance over τ × lr"))
-        if exp == "pose":
+        if exp == "pose" and not lookat:  # look-at rows' metric is the failure rate itself
             written.append(plot_heatmap(best, outdir / f"{exp}_heatmap_error.png", key="mean_metric",
                                         title="pose: mean final angular error (degrees)"))
         written.append(plot_top_histograms(best, outdir / f"{exp}_top{int(fraction * 100)}.png", fraction=fraction))
