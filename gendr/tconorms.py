@@ -1,7 +1,8 @@
 """T-conorms that aggregate the soft coverage of all faces at a pixel.
 
-Each family is ONE entry in :data:`TCONORMS`. Every family except ``max`` and the hard ``or`` is a
-continuous Archimedean T-conorm with an additive generator g (increasing, g(0) = 0), so the n-ary
+Each family is ONE entry in :data:`TCONORMS`. One entry, ``average`` (the mean over the faces), is
+not a T-conorm at all (``is_tconorm`` False; see below). Every other family except ``max`` and the
+hard ``or`` is a continuous Archimedean T-conorm with an additive generator g (increasing, g(0) = 0), so the n-ary
 aggregate over any number of faces is (DESIGN.md §4)
 
     A = g⁻¹( min( g(1), Σ_t g(p_t) ) ),      ∂A/∂p_k = g'(p_k) / g'(A),
@@ -31,6 +32,9 @@ Numerical contract of the archimedean entries (float32 and float64, NumPy and to
   p > 30 (in float64 only when (x/(1 − x))^p, (1 − x)^p or (−log(1 − x))^p really exceeds 1.8e308).
   frank's generator and inverse are accurate for any p in float64 and for 1e-37 < p < 1e37 in
   float32 (the constants p − 1 and 1/p − 1 must be finite). Use float64 beyond those.
+* ``average`` (kind ``"mean"``, ``is_tconorm`` False) is not a T-conorm: A = Σ_t p_t / F over all F
+  faces of the mesh (SoftRas' mean aggregation). It streams like the archimedean kinds with the
+  per-pair term p (:meth:`TConorm.pair_term`) and the finish Σ/F (:meth:`TConorm.from_sum`).
 * ``binary`` is the paper's two-argument formula, a float64 forward reference (tests, docs, the
   grid); its values are right on all of [0, 1]² (frank with p < 1e-3 cancels: absolute error grows
   to ~1e-12 at p = 1e-6 and ~1e-8 at p = 1e-10), its gradients are meant for arguments in [0, 1).
@@ -44,12 +48,19 @@ from typing import Callable
 from .params import Param, Registry, validate_params, POSITIVE, NONNEGATIVE, NEGATIVE, POSITIVE_NOT_ONE
 from .errors import ParameterError
 
-ARCHIMEDEAN, MAX, HARD_OR = "archimedean", "max", "or"
+ARCHIMEDEAN, MAX, HARD_OR, MEAN = "archimedean", "max", "or", "mean"
+#: kinds whose n-ary aggregate is a function of a per-pixel *sum* of per-pair terms: backends stream
+#: them (scatter-add / one summing loop) and finish with :meth:`TConorm.from_sum`
+SUM_KINDS = (ARCHIMEDEAN, MEAN)
 
 
 @dataclass(frozen=True)
 class TConormFamily:
-    """One T-conorm family. ``kind`` is ``"archimedean"``, ``"max"`` or ``"or"``."""
+    """One aggregation family. ``kind`` is ``"archimedean"``, ``"max"``, ``"or"`` or ``"mean"``.
+
+    ``is_tconorm`` is False for an aggregation that is not a T-conorm (``average``, kind ``"mean"``):
+    it is selected like one (``gendr.tconorm(name)``, ``Renderer(dist, name)``) but is listed apart
+    and is never part of the paper's grid of T-conorms."""
 
     name: str
     kind: str
@@ -59,6 +70,7 @@ class TConormFamily:
     generator_inverse: Callable | None = None  # (ops, s, **params) -> x, for 0 <= s <= g(1)
     generator_at_one: Callable | None = None  # (**params) -> g(1) as a Python float (inf: strict)
     doc: str = ""
+    is_tconorm: bool = True
 
 
 TCONORMS = Registry("tconorm")
@@ -87,6 +99,17 @@ class TConorm:
     def differentiable(self) -> bool:
         return self.kind != HARD_OR
 
+    @property
+    def is_tconorm(self) -> bool:
+        """False for ``average`` (the mean over the faces), which is not a T-conorm."""
+        return self.family.is_tconorm
+
+    @property
+    def streams(self) -> bool:
+        """True when the n-ary aggregate is :meth:`from_sum` of a per-pixel sum of
+        :meth:`pair_term` values (archimedean T-conorms and the mean)."""
+        return self.kind in SUM_KINDS
+
     def label(self) -> str:
         if not self.params:
             return self.name
@@ -103,27 +126,47 @@ class TConorm:
         """The dual T-norm T(a, b) = 1 − S(1 − a, 1 − b) (De Morgan with the standard negation)."""
         return 1.0 - self.binary(ops, 1.0 - a, 1.0 - b)
 
+    def _archimedean_only(self, what):
+        if self.kind != ARCHIMEDEAN:
+            raise ValueError(f"{self!r} has no {what}: only archimedean T-conorms have one (this is a "
+                             f"{self.kind!r} aggregation)")
+
     def generator(self, ops, x, log1m_x=None):
+        self._archimedean_only("additive generator")
         if log1m_x is None:
             log1m_x = ops.log1p(-x)
         return self.family.generator(ops, x, log1m_x, **self.kwargs)
 
     def generator_inverse(self, ops, s):
+        self._archimedean_only("additive generator")
         return self.family.generator_inverse(ops, s, **self.kwargs)
 
     @property
     def generator_at_one(self) -> float:
+        self._archimedean_only("additive generator")
         return self.family.generator_at_one(**self.kwargs)
 
-    def aggregate(self, ops, ps, log1m_ps=None):
+    def aggregate(self, ops, ps, log1m_ps=None, n_faces=None):
         """The n-ary aggregate of a Python list of same-shaped arrays ``ps`` (elementwise).
 
         archimedean: g⁻¹(min(g(1), Σ g(p_t))) (``log1m_ps``: optional matching list of log(1 − p_t),
-        entries may be None); max: the elementwise maximum; or: 1 where any p_t >= 1/2, else 0.
+        entries may be None); max: the elementwise maximum; or: 1 where any p_t >= 1/2, else 0;
+        mean: Σ p_t / n_faces, where ``n_faces`` (default ``len(ps)``) is the number of faces the
+        mean runs over: faces not listed count as p = 0. ``n_faces`` is only accepted for the mean.
         """
         ps = list(ps)
         if not ps:
             raise ValueError(f"{self!r}.aggregate needs at least one array")
+        if n_faces is not None and self.kind != MEAN:
+            raise ValueError(f"{self!r}.aggregate takes n_faces only for the mean (it is not a T-conorm)")
+        if self.kind == MEAN:
+            n = len(ps) if n_faces is None else n_faces
+            if isinstance(n, bool) or not isinstance(n, int) or n < len(ps):
+                raise ValueError(f"n_faces={n!r} must be an integer >= the number of arrays ({len(ps)})")
+            s = ps[0]
+            for p in ps[1:]:
+                s = s + p
+            return self.from_sum(ops, s, n)
         if self.kind in (MAX, HARD_OR):
             m = ps[0]
             for p in ps[1:]:
@@ -145,9 +188,32 @@ class TConorm:
             s = ops.minimum(s, ops.full_like(s, g1))
         return self.generator_inverse(ops, s)
 
+    def pair_term(self, ops, p, log1m_p=None):
+        """The per-(pixel, face) term that the streaming kinds sum: g(p) (archimedean; ``log1m_p`` =
+        log(1 − p) as for :meth:`generator`), p itself (mean)."""
+        if self.kind == MEAN:
+            return p
+        if self.kind != ARCHIMEDEAN:
+            raise ValueError(f"{self!r} is a {self.kind}-reduction, not a sum of per-pair terms")
+        return self.generator(ops, p, log1m_p)
+
+    def from_sum(self, ops, s, n_faces: int):
+        """The aggregate from a per-pixel sum ``s`` of :meth:`pair_term` values over the faces.
+
+        archimedean: g⁻¹(min(g(1), s)) (``n_faces`` unused); mean: s / n_faces, ``n_faces`` = the
+        number of faces of the mesh (F, a Python int; 0 faces gives 0)."""
+        if self.kind == MEAN:
+            return s * (1.0 / max(int(n_faces), 1))
+        if self.kind != ARCHIMEDEAN:
+            raise ValueError(f"{self!r} is a {self.kind}-reduction, not a sum of per-pair terms")
+        return self.from_generator_sum(ops, s)
+
 
 def tconorm(name, **params) -> TConorm:
     """Build a T-conorm spec: ``gendr.tconorm("yager", p=2)``.
+
+    ``gendr.tconorm("average")`` builds the one aggregation that is not a T-conorm (the mean over
+    the faces; ``.is_tconorm`` is False): it renders like the others but is not in the paper's grid.
 
     ``name`` may also be a :class:`TConorm` (returned unchanged). Raises
     :class:`~gendr.errors.UnknownNameError` / :class:`~gendr.errors.ParameterError`.
@@ -253,6 +319,18 @@ TCONORMS.add(TConormFamily(
     binary=lambda ops, a, b: ops.maximum(a, b),
     doc="S(a, b) = max(a, b), the smallest T-conorm (dual: min). Not archimedean: the n-ary aggregate "
         "is a max-reduction; its gradient flows to the arg-max only.",
+))
+
+
+TCONORMS.add(TConormFamily(
+    "average", MEAN,
+    binary=lambda ops, a, b: 0.5 * (a + b),
+    doc="Not a T-conorm: the arithmetic mean of the coverages over all F faces of the mesh, "
+        "A = (1/F)·Σ_t p_t, as SoftRas' alpha aggregation 'sum' (which divides by the face count). A face "
+        "that does not reach the pixel (culled: coverage < eps, or beyond the cut-off) counts as p = 0 "
+        "and still counts in F. binary(a, b) = (a + b)/2 is the mean of two faces. Averaging, not a "
+        "fuzzy or: 0 is not neutral, not associative, min <= A <= max for F = n; see docs/tconorms.md.",
+    is_tconorm=False,
 ))
 
 

@@ -11,6 +11,8 @@ evaluated on torch tensors). Everything else is the plainest possible code:
 * coverage p = F(x), x = d/τ (or d|d|/τ when squared), then the eps mask (p < eps -> 0);
 * aggregation by FOLDING the paper's binary T-conorm S(a, b) face by face (not the generator form
   the fast path uses), a max-reduction for ``max``, and 1 where max p >= 1/2 for the hard ``or``;
+  ``average`` (not a T-conorm): the plain sum of the coverages divided by F, the number of faces of
+  the mesh (faces behind the near plane, which have no coverage, still count in F);
 * RGB: SoftRas' softmax blend or a z-buffer ("hard"), colours from barycentrics of the
   intersection of the pixel's viewing ray with the triangle's plane (textbook ray–plane
   intersection, then areas), Lambert shading with area-weighted vertex normals (Gouraud) or face
@@ -44,7 +46,7 @@ import torch
 from gendr_torch.ops import torch_ops as ops  # the ops namespace only
 
 from gendr.renderer import LAMBERT_KINK_ULPS
-from gendr.tconorms import ARCHIMEDEAN, HARD_OR, MAX
+from gendr.tconorms import ARCHIMEDEAN, HARD_OR, MAX, MEAN
 
 __all__ = ["render_naive", "render_naive_settings", "pixel_face_geometry"]
 
@@ -166,8 +168,14 @@ def _barycentrics(tri, ray_o, ray_d):
     return torch.stack(bary, -1)
 
 
-def _fold(tcn, ps):
-    """The n-ary T-conorm as a left fold of the paper's binary formula (ps: list of [H, W])."""
+def _fold(tcn, ps, n_faces):
+    """The n-ary T-conorm as a left fold of the paper's binary formula (ps: list of [H, W]); for
+    ``average`` the mean over all ``n_faces`` faces of the mesh (faces missing from ps count as 0)."""
+    if tcn.kind == MEAN:
+        total = ps[0]
+        for p in ps[1:]:
+            total = total + p
+        return total / n_faces
     if tcn.kind in (MAX, HARD_OR):
         m = torch.stack(ps).amax(0)
         return m if tcn.kind == MAX else (m >= 0.5).to(m.dtype)
@@ -277,7 +285,7 @@ def render_naive(vertices, faces, camera, *, distribution, tconorm, tau, image_s
             colours.append((bary[..., :, None] * corner_rgb[b, f]).sum(-2))  # [H, W, 3]
 
         if ps:
-            alpha = _fold(tconorm, ps)
+            alpha = _fold(tconorm, ps, F)
         else:
             alpha = torch.zeros(H, W, dtype=dtype)
 

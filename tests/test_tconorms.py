@@ -20,7 +20,7 @@ import pytest
 from gendr import TCONORMS, tconorm
 from gendr.errors import ParameterError, UnknownNameError
 from gendr.ops import numpy_ops as O
-from gendr.tconorms import ARCHIMEDEAN, HARD_OR, MAX, TConorm
+from gendr.tconorms import ARCHIMEDEAN, HARD_OR, MAX, MEAN, TConorm
 
 # Formulas legitimately hit log(0) = -inf and 1/0 = inf at x = 1 (NumPy warns about it).
 pytestmark = [pytest.mark.filterwarnings("ignore:divide by zero:RuntimeWarning"),
@@ -29,6 +29,7 @@ pytestmark = [pytest.mark.filterwarnings("ignore:divide by zero:RuntimeWarning")
 SETTINGS = [
     ("max", {}),
     ("or", {}),
+    ("average", {}),  # not a T-conorm: its own tests below
     ("probabilistic", {}),
     ("einstein", {}),
     ("hamacher", {"p": 0.0}), ("hamacher", {"p": 0.3}), ("hamacher", {"p": 1.0}),
@@ -42,7 +43,7 @@ SETTINGS = [
     ("schweizer_sklar", {"p": -5.0}),
 ]
 ALL = [tconorm(name, **kw) for name, kw in SETTINGS]
-SOFT = [t for t in ALL if t.kind != HARD_OR]          # satisfy the axioms on all of [0, 1]
+SOFT = [t for t in ALL if t.kind not in (HARD_OR, MEAN)]  # satisfy the axioms on all of [0, 1]
 ARCH = [t for t in ALL if t.kind == ARCHIMEDEAN]
 
 
@@ -74,7 +75,9 @@ def Ginv(t, s):
 
 def test_settings_cover_every_family():
     assert {name for name, _ in SETTINGS} == set(TCONORMS)
-    assert {t.kind for t in ALL} == {ARCHIMEDEAN, MAX, HARD_OR}
+    assert {t.kind for t in ALL} == {ARCHIMEDEAN, MAX, HARD_OR, MEAN}
+    # every family is a T-conorm except the mean, and the mean is the only non-T-conorm
+    assert {t.name for t in ALL if not t.is_tconorm} == {"average"}
 
 
 # ------------------------------------------------------------------------------------------------
@@ -504,3 +507,90 @@ def test_unexpected_parameter():
         tconorm("einstein", q=1.0)
     with pytest.raises(ParameterError):
         tconorm(tconorm("max"), p=1.0)
+
+
+# ------------------------------------------------------------------------------------------------
+# average: the mean over the faces, NOT a T-conorm (docs/tconorms.md, "average")
+# ------------------------------------------------------------------------------------------------
+
+AVG = tconorm("average")
+
+
+def test_average_is_flagged_and_streams():
+    assert AVG.kind == MEAN and not AVG.is_tconorm and AVG.streams and AVG.differentiable
+    assert all(t.is_tconorm for t in ALL if t.name != "average")
+    assert repr(AVG) == "TConorm('average')" and AVG.label() == "average"
+
+
+def test_average_binary_is_the_mean_of_two_and_self_dual():
+    np.testing.assert_allclose(S(AVG, A2, B2), (A2 + B2) / 2, rtol=0, atol=EXACT)
+    np.testing.assert_allclose(np.asarray(AVG.tnorm(O, A2, B2)), (A2 + B2) / 2, rtol=0, atol=EXACT)
+
+
+def test_average_fails_the_tconorm_axioms_it_should_fail():
+    """Commutative and monotone, but 0 is not neutral, 1 is not absorbing, not associative, and it
+    lies between min and max (an averaging function), not above max."""
+    a, b = AI, BI
+    np.testing.assert_allclose(S(AVG, a, b), S(AVG, b, a), rtol=0, atol=EXACT)
+    v = S(AVG, A2, B2).reshape(len(GRID), len(GRID))
+    assert np.all(np.diff(v, axis=0) >= 0) and np.all(np.diff(v, axis=1) >= 0)
+    assert np.abs(S(AVG, INTERIOR, 0.0 * INTERIOR) - INTERIOR).min() > 0.009   # S(a, 0) = a/2 != a
+    assert np.abs(S(AVG, INTERIOR, 0.0 * INTERIOR + 1.0) - 1.0).min() > 0.009  # S(a, 1) != 1
+    c = np.full_like(a, 0.9)
+    assert np.abs(S(AVG, S(AVG, a, b), c) - S(AVG, a, S(AVG, b, c))).max() > 0.1  # not associative
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    m = S(AVG, a, b)
+    assert np.all(m >= lo - EXACT) and np.all(m <= hi + EXACT)
+    assert np.any(m < hi - 0.1)                                                   # below max: no "or"
+    np.testing.assert_allclose(S(AVG, INTERIOR, INTERIOR), INTERIOR, rtol=0, atol=EXACT)  # idempotent
+
+
+def test_average_aggregate_divides_by_the_face_count():
+    rng = np.random.default_rng(3)
+    ps = [rng.uniform(0, 1, 50) for _ in range(5)]
+    np.testing.assert_allclose(np.asarray(AVG.aggregate(O, ps)), np.mean(ps, axis=0), rtol=0, atol=EXACT)
+    # faces that do not reach the pixel count as 0, but still count in F
+    np.testing.assert_allclose(np.asarray(AVG.aggregate(O, ps, n_faces=8)), np.sum(ps, axis=0) / 8, rtol=0, atol=EXACT)
+    # the mean of two is binary(); folding binary() is NOT the n-ary mean (not associative)
+    fold = ps[0]
+    for p in ps[1:]:
+        fold = S(AVG, fold, p)
+    assert np.abs(fold - np.mean(ps, axis=0)).max() > 1e-2
+    # the streaming form the backends use: pair_term = p, from_sum = Σ/F (F = 0 faces: 0, no NaN)
+    s = sum(AVG.pair_term(O, p) for p in ps)
+    np.testing.assert_allclose(np.asarray(AVG.from_sum(O, s, 5)), np.mean(ps, axis=0), rtol=0, atol=EXACT)
+    assert float(AVG.from_sum(O, np.float64(0.0), 0)) == 0.0
+
+
+def test_average_aggregate_gradient_is_one_over_f(torch_ops):
+    import torch
+    ps = [torch.tensor([0.0, 0.3, 1.0], dtype=torch.float64, requires_grad=True) for _ in range(3)]
+    A = AVG.aggregate(torch_ops, ps, n_faces=6)
+    grads = torch.autograd.grad(A.sum(), ps)
+    for g in grads:  # also at p = 0 and p = 1: a face with p = 1 does not saturate the mean
+        assert torch.equal(g, torch.full((3,), 1.0 / 6.0, dtype=torch.float64))
+
+
+def test_average_typed_errors():
+    with pytest.raises(ParameterError, match="'p'.*no parameters"):
+        tconorm("average", p=1.0)
+    with pytest.raises(UnknownNameError, match="average"):
+        tconorm("averag")
+    with pytest.raises(ValueError, match="n_faces"):
+        AVG.aggregate(O, [np.zeros(2), np.zeros(2)], n_faces=1)   # fewer faces than terms
+    with pytest.raises(ValueError, match="n_faces"):
+        AVG.aggregate(O, [np.zeros(2)], n_faces=2.0)
+    with pytest.raises(ValueError, match="n_faces"):
+        tconorm("probabilistic").aggregate(O, [np.zeros(2)], n_faces=3)  # T-conorms do not depend on F
+    with pytest.raises(ValueError, match="no additive generator"):
+        AVG.generator(O, np.zeros(2))
+    with pytest.raises(ValueError, match="no additive generator"):
+        tconorm("max").generator_at_one
+    with pytest.raises(ValueError, match="not a sum"):
+        tconorm("max").pair_term(O, np.zeros(2))
+
+
+def test_average_is_not_in_the_paper_grid():
+    from gendr import paper_grid
+    grid = paper_grid()
+    assert len(grid) == 1242 and all(i.tconorm.name != "average" and i.tconorm.is_tconorm for i in grid)

@@ -11,7 +11,7 @@ Pipeline of one render (DESIGN.md §5; semantics identical to ``gendr_torch.rast
    nothing is read back, so a render can be frozen (``gendr_drjit.frozen``).
 3. a symbolic ``dr.while_loop`` per pixel (lanes in tile-major order, :class:`Pixels`) over its
    tile's faces in ascending order: signed distance to the polygon, coverage p = F(x), generator
-   g(p), summed (archimedean T-conorms). Gradients: :class:`AlphaSum`, a custom op whose backward
+   g(p), summed (archimedean T-conorms; the mean ``average`` sums p itself). Gradients: :class:`AlphaSum`, a custom op whose backward
    is a second explicit loop (analytic distance derivative, local forward-mode derivative of the
    spec formulas, scatter-adds into the face corners); nothing is stored per (pixel, face) pair.
 4. ``max`` / hard ``or`` / the hard z-buffer / the softmax maximum are not sums: a first loop
@@ -31,7 +31,7 @@ import numpy as np
 import drjit as dr
 
 from gendr.renderer import LAMBERT_KINK_ULPS
-from gendr.tconorms import ARCHIMEDEAN, MAX
+from gendr.tconorms import MAX, MEAN
 
 #: tile edges tried in order (see tile_size); TILE != 0 forces one
 TILES = (4, 8, 16, 32)
@@ -455,7 +455,16 @@ def generator_terms(dist, tcn, ops, x, x_eps, x_cut=None):
     """(g, sat): generator value (0 where saturated or culled) and saturation flag of argument x.
     Pairs with x < x_eps = F⁻¹(eps) (coverage < eps) are culled: a test on x, so that F itself is
     never evaluated where the generator reads only log(1 − F) (dead code to Dr.Jit); so are those
-    with x <= x_cut (the reference cut-off, RenderSettings.cutoff_argument)."""
+    with x <= x_cut (the reference cut-off, RenderSettings.cutoff_argument). The mean (``average``)
+    sums p itself (TConorm.pair_term), culled alike, and never saturates."""
+    if tcn.kind == MEAN:
+        g = tcn.pair_term(ops, dist.cdf(ops, x))
+        keep = x >= x_eps if x_eps > -math.inf else None
+        if x_cut is not None:
+            keep = (x > x_cut) if keep is None else keep & (x > x_cut)
+        if keep is not None:
+            g = dr.select(keep, g, 0.0)
+        return g, dr.zeros(dr.mask_t(x), dr.width(x))
     p, l = dist.cdf_and_log_sf(ops, x)
     sat = ~(l > -math.inf)
     g = tcn.generator(ops, dr.select(sat, 0.5, p), dr.select(sat, math.log(0.5), l))
@@ -604,8 +613,8 @@ class _Ctx:
 
 
 class AlphaSum(dr.CustomOp):
-    """S = Σ_faces g(F(x(d, τ))) per pixel (archimedean T-conorms, one array per strip row), with a
-    hand-written backward.
+    """S = Σ_faces g(F(x(d, τ))) per pixel (archimedean T-conorms, one array per strip row; for the
+    mean g(p) = p), with a hand-written backward.
 
     Forward: :func:`alpha_sums`, without any AD bookkeeping. Backward: a second loop over the same
     faces that recomputes each pair, takes the local derivative of the spec formulas (forward-mode
@@ -685,7 +694,8 @@ class AlphaSum(dr.CustomOp):
 
 
 def alpha_archimedean(s, fc, T, ops, pix, pix1, tau, resid=None, keep_sums=False):
-    """Alpha of an archimedean T-conorm as a row-major image [B·H·W]; sets fc.S, fc.nsat (the
+    """Alpha of an archimedean T-conorm, or of the mean (``average``: S/F, F the number of faces of
+    the mesh), as a row-major image [B·H·W]; sets fc.S, fc.nsat (the
     loop's sums). ``pix``: the strip lanes of :func:`alpha_sums`; ``pix1`` one pixel per lane (the
     generic reverse-mode loop). ``resid``: (S, nsat) of an earlier forward pass of the same inputs
     (frozen backward replays reuse them); ``keep_sums``: store S, nsat when the loop runs (the frozen
@@ -708,6 +718,8 @@ def alpha_archimedean(s, fc, T, ops, pix, pix1, tau, resid=None, keep_sums=False
         dr.schedule(S, nsat)  # one loop kernel for all rows (each gather below would evaluate its own)
     fc.S, fc.nsat = S, nsat
     A = []
+    if tcn.kind == MEAN:  # no saturation, no singular point: A = S/F
+        return pix.to_image([tcn.from_sum(ops, Sr, fc.F) for Sr in S])
     for Sr, nr in zip(S, nsat):
         pos = Sr > 0.0
         Ar = dr.select(pos, tcn.from_generator_sum(ops, dr.select(pos, Sr, 1.0)), 0.0)
@@ -853,7 +865,7 @@ def render_parts(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, colors
     bins = Bins(fc, H, W, cull_r if cull_r is not None else math.inf, T)
     pix1 = Pixels(T, fc.B, H, W, bins)  # one pixel per lane: max, "or", the RGB blends
     fc.S = fc.nsat = None
-    if settings.tconorm.kind == ARCHIMEDEAN:
+    if settings.tconorm.streams:  # archimedean T-conorms and the mean
         strips = Pixels(T, fc.B, H, W, bins, rows=min(STRIP, bins.tile))
         A = alpha_archimedean(settings, fc, T, ops, strips, pix1, tau, resid, keep_sums)
     else:

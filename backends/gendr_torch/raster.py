@@ -22,7 +22,7 @@ from torch.utils.checkpoint import checkpoint
 from gendr.cameras import VEC3
 from gendr.errors import InputValueError, ShapeError
 from gendr.renderer import LAMBERT_KINK_ULPS
-from gendr.tconorms import ARCHIMEDEAN, MAX
+from gendr.tconorms import MAX, MEAN
 
 from .ops import torch_ops as ops
 
@@ -420,7 +420,12 @@ def _generator_terms(dist, tcn, x, eps, x_cut=None):
     """Per-pair generator values g(p) (0 where saturated, or culled: coverage < eps, tested as
     x < F⁻¹(eps) like the Dr.Jit backend; and with ``x_cut``, x <= x_cut, the reference cut-off of
     RenderSettings.cutoff_argument) and the mask of saturated pairs (p = 1, or g overflowed), which
-    set their pixel's alpha to 1 (None: none)."""
+    set their pixel's alpha to 1 (None: none). The mean (``average``) sums p itself
+    (TConorm.pair_term), culled alike, and never saturates: a face with p = 1 just adds 1."""
+    if tcn.kind == MEAN:
+        p = tcn.pair_term(ops, dist.cdf(ops, x))
+        keep = _keep(dist, x.detach(), eps, x_cut)
+        return (p * keep if keep is not None else p), None
     p, log1m = dist.cdf_and_log_sf(ops, x)
     g = tcn.generator(ops, p, log1m)
     if bool(torch.isfinite(log1m.detach().sum() + g.detach().sum())):  # the usual case: nothing saturated
@@ -450,7 +455,10 @@ def _keep(dist, x, eps, x_cut):
     return keep
 
 
-def _from_sum(tcn, S, nsat):
+def _from_sum(tcn, S, nsat, n_faces):
+    """Alpha from the per-pixel sums: saturated pixels 1; the mean S/F has no singular point."""
+    if tcn.kind == MEAN:
+        return tcn.from_sum(ops, S, n_faces)
     pos = S > 0
     A = torch.where(pos, tcn.from_generator_sum(ops, torch.where(pos, S, 1.0)), 0.0)
     return torch.where(nsat > 0, 1.0, A)
@@ -475,7 +483,7 @@ class SoftAlpha(torch.autograd.Function):
         B, K, Wc = plan.fc.B, plan.fc.K, plan.Wc
         geom = edge_table(X, Y)
         S = X.new_zeros(B * H * Wc)
-        if tcn.kind == ARCHIMEDEAN:
+        if tcn.streams:  # archimedean T-conorms and the mean: a scatter-added sum per pixel
             nsat = torch.zeros(B * H * Wc, dtype=torch.int32, device=X.device)
             for blk in plan.chunks():
                 d = signed_distance(geom.index_select(0, blk.face), K, blk)
@@ -485,7 +493,7 @@ class SoftAlpha(torch.autograd.Function):
                 if sat is not None:
                     nsat.index_add_(0, pix, sat.reshape(-1).to(torch.int32))
             acc = torch.stack([S, nsat.to(S.dtype)], 0).reshape(2, B, H, Wc)[..., :W]
-            A = _from_sum(tcn, acc[0], acc[1])
+            A = _from_sum(tcn, acc[0], acc[1], plan.fc.F)
         else:
             for r0, r1, blk in plan.bands():
                 if blk is None:
@@ -512,7 +520,7 @@ class SoftAlpha(torch.autograd.Function):
         x_cut = s.cutoff_argument(ops, tau.detach())
         W = s.image_size[1]
         B, K, Wc = plan.fc.B, plan.fc.K, plan.Wc
-        if tcn.kind not in (ARCHIMEDEAN, MAX):
+        if not (tcn.streams or tcn.kind == MAX):  # the hard "or": piecewise constant
             return None, None, None, None
         want_tau = ctx.needs_input_grad[2]
         geom = edge_table(X, Y)
@@ -546,10 +554,10 @@ class SoftAlpha(torch.autograd.Function):
                 for i, v in enumerate(parts):
                     gP[i].index_add_(0, idx, (v * m).sum(1))
 
-        if tcn.kind == ARCHIMEDEAN:
+        if tcn.streams:
             with torch.enable_grad():  # dL/dS = dL/dA · dA/dS, per pixel
                 S = acc[0].detach().requires_grad_(True)
-                (gS,) = torch.autograd.grad(_from_sum(tcn, S, acc[1]), S, gA)
+                (gS,) = torch.autograd.grad(_from_sum(tcn, S, acc[1], plan.fc.F), S, gA)
             gS = torch.nn.functional.pad(gS, (0, Wc - W)).reshape(-1)
             for blk in plan.chunks():
                 w = gS.index_select(0, blk.pix().reshape(-1)).view(-1, blk.width)
