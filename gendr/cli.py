@@ -322,8 +322,15 @@ def cmd_list(args) -> int:
         reg = _api("TCONORMS")
         print("T-conorms:")
         for name, fam in reg.items():
-            print(f"  {name:16s} params: {_param_text(fam.params)}; {fam.kind}"
-                  + (f"; {_first_sentence(fam.doc)}" if fam.doc else ""))
+            if fam.is_tconorm:
+                print(f"  {name:16s} params: {_param_text(fam.params)}; {fam.kind}"
+                      + (f"; {_first_sentence(fam.doc)}" if fam.doc else ""))
+        others = [(name, fam) for name, fam in reg.items() if not fam.is_tconorm]
+        if others:
+            print("other aggregations (not T-conorms; selected like one with --tconorm NAME, not in the paper grid):")
+            for name, fam in others:
+                print(f"  {name:16s} params: {_param_text(fam.params)}; {fam.kind}, not a T-conorm"
+                      + (f"; {_first_sentence(fam.doc)}" if fam.doc else ""))
     elif what == "scenes":
         from .scenes import SCENES
         print("built-in scenes (use the name in place of a mesh file):")
@@ -414,7 +421,8 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--squared", action="store_true", help="use the squared variant F(d|d|/tau) (SoftRas)")
     g.add_argument("--shift", type=float, default=None, help="shift the distribution: F(x + S) (default 0)")
     g.add_argument("--tconorm", default=None, metavar="NAME",
-                   help="T-conorm aggregating the faces (default probabilistic)")
+                   help="T-conorm aggregating the faces (default probabilistic; or 'average', the mean "
+                        "over the faces, which is not a T-conorm)")
     g.add_argument("--tconorm-param", action="append", default=None, metavar="NAME=VALUE",
                    help="T-conorm parameter, repeatable (e.g. p=2 for yager)")
     g.add_argument("--instance", type=int, default=None, metavar="K",

@@ -325,11 +325,11 @@ TCONORMS.add(TConormFamily(
 TCONORMS.add(TConormFamily(
     "average", MEAN,
     binary=lambda ops, a, b: 0.5 * (a + b),
-    doc="Not a T-conorm: the arithmetic mean of the coverages over all F faces of the mesh, "
-        "A = (1/F)·Σ_t p_t, as SoftRas' alpha aggregation 'sum' (which divides by the face count). A face "
-        "that does not reach the pixel (culled: coverage < eps, or beyond the cut-off) counts as p = 0 "
-        "and still counts in F. binary(a, b) = (a + b)/2 is the mean of two faces. Averaging, not a "
-        "fuzzy or: 0 is not neutral, not associative, min <= A <= max for F = n; see docs/tconorms.md.",
+    doc="A = (1/F)·Σ_t p_t, the mean coverage over all F faces of the mesh (SoftRas' alpha 'sum'). "
+        "Not a T-conorm. A face that does not reach the pixel (culled: coverage < eps, or beyond the "
+        "cut-off) counts as p = 0 and still counts in F. binary(a, b) = (a + b)/2 is the mean of two "
+        "faces. Averaging, not a fuzzy or: 0 is not neutral, 1 not absorbing, not associative, "
+        "min <= A <= max; see docs/tconorms.md.",
     is_tconorm=False,
 ))
 
