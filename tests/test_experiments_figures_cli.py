@@ -78,6 +78,33 @@ def test_cli_sweep_then_figures(tmp_path, capsys):
     assert gendr_main(["experiment", "sweep", "--dists", "nope", "-o", str(out)]) != 0
 
 
+def test_average_runs_beside_the_grid_in_sweeps_figures_and_findings(tmp_path, capsys):
+    """"average" is not a T-conorm (no grid index): a sweep selects it by label, refines it by label,
+    the heatmap draws it as an extra column and the findings compare it."""
+    out = tmp_path / "avg.jsonl"
+    args = ["experiment", "sweep", "--dists", "logistic", "--tconorms", "probabilistic,average", "--variants",
+            "plain,squared", "--taus", "0.1,0.05", "--fine-steps=-0.25", "--workers", "0", "-q", "-o", str(out),
+            "--set", "target=tetrahedron", "--set", "steps=2", "--set", "image_size=12", "--set", "views=2",
+            "--set", "subdivisions=1"]
+    assert gendr_main(args) == 0
+    from gendr_experiments.figures import column_labels, score_matrix
+    from gendr_experiments.sweep import load_rows, summarize_best
+    rows = load_rows(out)
+    assert len(rows) == 12  # 4 instances x (2 coarse + 1 fine)
+    avg = [r for r in rows if r["tconorm"] == "average"]
+    assert len(avg) == 6 and all(r["instance"] is None and r["status"] == "ok" for r in avg)
+    best = summarize_best(rows, "shape")
+    assert set(best) >= {"logistic|average", "logistic+sq|average"}
+    M = score_matrix(best)
+    col = column_labels().index("average")
+    assert np.isfinite(M[:, 5, col]).all() and M[0, 5, col] == best["logistic|average"]["score"]
+    assert gendr_main(["experiment", "figures", str(out), "-o", str(tmp_path / "figs")]) == 0
+    assert "average" in (tmp_path / "figs" / "shape_marginals.csv").read_text()
+    capsys.readouterr()
+    assert gendr_main(["experiment", "findings", str(out)]) == 0
+    assert "| average poor |" in capsys.readouterr().out
+
+
 def test_cli_sweep_scheduler_address(tmp_path):
     distributed = pytest.importorskip("distributed")
     out_pool, out_dask = tmp_path / "pool.jsonl", tmp_path / "dask.jsonl"

@@ -193,36 +193,43 @@ def cmd_protocols(a) -> int:
     return 0
 
 
-def select_instances(a) -> list[int]:
+def select_instances(a) -> list:
     """Grid indices from --instances and/or --dists × --variants × --tconorms (labels of
-    `gendr experiment sweep --list-labels`)."""
-    from gendr.grid import TCONORM_SETTINGS
-    from .figures import grid_labels
+    `gendr experiment sweep --list-labels`); the T-conorm label "average" (not in the grid) gives
+    config dicts ``{"distribution": {...}, "tconorm": "average"}`` instead."""
+    from gendr.grid import DISTRIBUTION_SETTINGS, TCONORM_SETTINGS
+    from .figures import EXTRA_COLUMNS, grid_labels
     dl, tl = grid_labels()
     out = []
     if a.instances:
         out += list(range(len(dl) * 2 * len(tl))) if a.instances == "all" else _ints(a.instances)
     if a.dists or a.tconorms:
-        def pick(spec, labels, what):
+        def pick(spec, labels, what, extra=()):
             if not spec or spec == "all":
                 return list(range(len(labels)))
             idx = []
             for s in spec.split(","):
                 s = s.strip()
-                if s not in labels:
-                    raise ValueError(f"unknown {what} label {s!r}; known: {', '.join(labels)}")
-                idx.append(labels.index(s))
+                if s not in labels and s not in extra:
+                    raise ValueError(f"unknown {what} label {s!r}; known: {', '.join(list(labels) + list(extra))}")
+                idx.append(labels.index(s) if s in labels else s)
             return idx
         variants = {"plain": 0, "squared": 1}
         vs = [variants[v.strip()] for v in a.variants.split(",")]
         for d in pick(a.dists, dl, "distribution"):
             for v in vs:
-                for t in pick(a.tconorms, tl, "T-conorm"):
-                    out.append((d * 2 + v) * len(TCONORM_SETTINGS) + t)
+                for t in pick(a.tconorms, tl, "T-conorm", EXTRA_COLUMNS):
+                    if isinstance(t, str):
+                        name, params, rev = DISTRIBUTION_SETTINGS[d]
+                        out.append({"distribution": {"name": name, "reversed": rev, "squared": bool(v), **params},
+                                    "tconorm": t})
+                    else:
+                        out.append((d * 2 + v) * len(TCONORM_SETTINGS) + t)
     seen, uniq = set(), []
     for i in out:
-        if i not in seen:
-            seen.add(i)
+        k = json.dumps(i, sort_keys=True)
+        if k not in seen:
+            seen.add(k)
             uniq.append(i)
     return uniq
 
@@ -233,7 +240,9 @@ def cmd_sweep(a) -> int:
     if a.list_labels:
         dl, tl = grid_labels()
         print("distributions (--dists):\n  " + "\n  ".join(dl))
+        from .figures import EXTRA_COLUMNS
         print("T-conorms (--tconorms):\n  " + "\n  ".join(tl))
+        print("not T-conorms (--tconorms; runs outside the grid):\n  " + "\n  ".join(EXTRA_COLUMNS))
         return 0
     try:
         instances = select_instances(a)
@@ -276,7 +285,7 @@ def cmd_sweep(a) -> int:
           file=sys.stderr)
     print(f"{'instance':>8s}  {'label':45s} {tau_key:>10s} {'lr':>8s} {'score':>8s}")
     for inst, b in sorted(best.items(), key=lambda kv: kv[1]["score"]):
-        print(f"{inst:8d}  {b['label']:45s} {b[tau_key]:10.3g} {b['lr']:8.3g} {b['score']:8.4f}")
+        print(f"{str(inst) if isinstance(inst, int) else '-':>8s}  {b['label']:45s} {b[tau_key]:10.3g} {b['lr']:8.3g} {b['score']:8.4f}")
     return 0
 
 

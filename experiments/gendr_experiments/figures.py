@@ -5,6 +5,7 @@ Only matplotlib's Agg backend is used (no display needed).
 """
 from __future__ import annotations
 
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +14,7 @@ from gendr.grid import DISTRIBUTION_SETTINGS, TCONORM_SETTINGS
 
 from .sweep import EXPERIMENTS, summarize_best
 
-__all__ = ["grid_labels", "score_matrix", "plot_heatmap", "plot_top_histograms", "write_gif", "make_figures"]
+__all__ = ["EXTRA_COLUMNS", "grid_labels", "column_labels", "score_matrix", "plot_heatmap", "plot_top_histograms", "write_gif", "make_figures"]
 
 
 def _dist_label(name, params, rev):
@@ -30,6 +31,37 @@ def grid_labels():
     return ([_dist_label(*d) for d in DISTRIBUTION_SETTINGS], [_tconorm_label(*t) for t in TCONORM_SETTINGS])
 
 
+#: aggregation columns drawn beside the grid's 27 T-conorms (not T-conorms; runs keyed by label)
+EXTRA_COLUMNS = ("average",)
+
+
+def column_labels():
+    """The 27 T-conorm labels of the grid, then :data:`EXTRA_COLUMNS`."""
+    return grid_labels()[1] + list(EXTRA_COLUMNS)
+
+
+@lru_cache(maxsize=1)
+def _distribution_rows():
+    """gendr distribution label (``"gamma(shape=0.5)+rev+sq"``) -> (row, squared) in the grid."""
+    from gendr.grid import paper_grid
+    out = {}
+    for inst in paper_grid():
+        d, sq, _ = _position(inst.index)
+        out[inst.distribution.label()] = (d, sq)
+    return out
+
+
+def _cell(key, entry):
+    """(row, squared, column) of a :func:`~gendr_experiments.sweep.summarize_best` entry, or None."""
+    if isinstance(key, (int, np.integer)):
+        return _position(int(key))
+    dist_label, _, tcn_label = str(entry.get("label") or key).partition("|")
+    pos = _distribution_rows().get(dist_label)
+    if pos is None or tcn_label not in EXTRA_COLUMNS:
+        return None
+    return pos[0], pos[1], len(TCONORM_SETTINGS) + EXTRA_COLUMNS.index(tcn_label)
+
+
 def _position(index: int):
     """Grid index -> (distribution row, squared 0/1, T-conorm column) (grid is distribution-major)."""
     nt = len(TCONORM_SETTINGS)
@@ -39,14 +71,15 @@ def _position(index: int):
 
 
 def score_matrix(best: dict, key: str = "score"):
-    """``[2, 23, 27]`` array (plain, squared) of ``best[instance][key]``; NaN where not run.
-    Instances without a grid index (custom distribution/T-conorm) are skipped."""
-    M = np.full((2, len(DISTRIBUTION_SETTINGS), len(TCONORM_SETTINGS)), np.nan)
-    for inst, b in best.items():
-        if inst is None:
-            continue
-        d, sq, t = _position(int(inst))
-        M[sq, d, t] = b[key]
+    """``[2, 23, 27 + len(EXTRA_COLUMNS)]`` array (plain, squared) of ``best[...][key]``: the grid's
+    T-conorm columns, then the extra aggregations (e.g. "average", placed by label); NaN where not
+    run. Other runs outside the grid (custom distribution / T-conorm) are skipped."""
+    M = np.full((2, len(DISTRIBUTION_SETTINGS), len(TCONORM_SETTINGS) + len(EXTRA_COLUMNS)), np.nan)
+    for k, b in best.items():
+        cell = None if k is None else _cell(k, b)
+        if cell is not None:
+            d, sq, t = cell
+            M[sq, d, t] = b[key]
     return M
 
 
@@ -65,7 +98,7 @@ def plot_heatmap(best: dict, path, *, key="score", title=None, trim=True, cmap="
     import matplotlib.pyplot as plt
 
     M = score_matrix(best, key)
-    dl, tl = grid_labels()
+    dl, tl = grid_labels()[0], column_labels()
     rows, cols = _trim(M) if trim else (np.arange(M.shape[1]), np.arange(M.shape[2]))
     if len(rows) == 0:
         raise ValueError("no grid instances in these results: nothing to plot")
@@ -102,7 +135,8 @@ def plot_heatmap(best: dict, path, *, key="score", title=None, trim=True, cmap="
 
 def top_fraction(best: dict, fraction=0.1, key="score"):
     """The instances of the best ``fraction`` (at least one), best first."""
-    items = sorted(((b[key], inst) for inst, b in best.items() if inst is not None and np.isfinite(b[key])))
+    items = sorted(((b[key], inst) for inst, b in best.items() if inst is not None and np.isfinite(b[key])),
+                   key=lambda si: si[0])
     n = max(1, int(round(fraction * len(items))))
     return [inst for _, inst in items[:n]]
 
@@ -115,11 +149,14 @@ def plot_top_histograms(best: dict, path, *, fraction=0.1, key="score", title=No
     import matplotlib.pyplot as plt
 
     top = top_fraction(best, fraction, key)
-    dl, tl = grid_labels()
+    dl, tl = grid_labels()[0], column_labels()
     dcount = np.zeros((2, len(dl)))
     tcount = np.zeros(len(tl))
     for inst in top:
-        d, sq, t = _position(int(inst))
+        cell = _cell(inst, best[inst])
+        if cell is None:
+            continue
+        d, sq, t = cell
         dcount[sq, d] += 1
         tcount[t] += 1
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(14, 4))
@@ -169,7 +206,7 @@ def make_figures(rows, outdir, *, experiment=None, fraction=0.1) -> list[Path]:
     written = []
     exps = [experiment] if experiment else sorted({r["experiment"] for r in rows})
     for exp in exps:
-        best = summarize_best([r for r in rows if r["experiment"] == exp and r.get("instance") is not None], exp)
+        best = summarize_best([r for r in rows if r["experiment"] == exp], exp)
         if not best:
             continue
         exp_rows = [r for r in rows if r["experiment"] == exp]
@@ -201,7 +238,7 @@ def write_marginals(best: dict, path, key="score"):
     """Mean and median of the best ``key`` per distribution row (plain and squared separately) and per
     T-conorm column, over the instances that were run: the table behind the paper's qualitative claims."""
     M = score_matrix(best, key)
-    dl, tl = grid_labels()
+    dl, tl = grid_labels()[0], column_labels()
     with open(path, "w") as f:
         f.write("kind,label,variant,n,mean,median,min\n")
         for k, variant in enumerate(("plain", "squared")):

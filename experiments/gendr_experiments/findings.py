@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .figures import grid_labels, score_matrix
+from .figures import column_labels, grid_labels, score_matrix
 from .sweep import summarize_best
 
 __all__ = ["BLOCKS", "Finding", "shape_findings", "pose_similarity", "findings_markdown"]
@@ -44,7 +44,7 @@ def _rows(labels):
 
 
 def _cols(labels):
-    _, tl = grid_labels()
+    tl = column_labels()
     return [tl.index(x) for x in labels]
 
 
@@ -64,9 +64,9 @@ def _compare(claim, a, b, noise, what_a, what_b):
 
 def shape_findings(rows, noise: float = 0.03) -> list[Finding]:
     """The paper's §5.1 findings, each with its verdict on ``rows`` (shape sweep rows)."""
-    best = summarize_best([r for r in rows if r.get("instance") is not None], "shape")
-    M = score_matrix(best)  # [2, 23, 27]
-    dl, tl = grid_labels()
+    best = summarize_best(rows, "shape")
+    M = score_matrix(best)  # [2, 23, 27 T-conorms + extra columns (average)]
+    dl, tl = grid_labels()[0], column_labels()
     out = []
     allrows = range(M.shape[1])
 
@@ -182,8 +182,8 @@ def shape_findings(rows, noise: float = 0.03) -> list[Finding]:
 def pose_similarity(shape_rows, pose_rows) -> Finding:
     """'pose similar to shape': Spearman rank correlation of the best scores of the instances both
     sweeps ran."""
-    s = summarize_best([r for r in shape_rows if r.get("instance") is not None], "shape")
-    p = summarize_best([r for r in pose_rows if r.get("instance") is not None], "pose")
+    s = summarize_best(shape_rows, "shape")
+    p = summarize_best(pose_rows, "pose")
     common = sorted(set(s) & set(p))
     claim = "pose optimisation behaves like shape optimisation"
     if len(common) < 5:

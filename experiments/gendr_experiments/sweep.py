@@ -55,7 +55,9 @@ def full_config(experiment: str, overrides: dict) -> dict:
 
 
 def expand(experiment: str, base: dict | None = None, *, instances=(None,), axes: dict | None = None) -> list[dict]:
-    """Full configs of the Cartesian product ``instances × axes`` (``axes``: key -> list of values,
+    """Full configs of the Cartesian product ``instances × axes`` (``instances``: grid indices, or dicts
+    of config keys for runs outside the grid such as ``{"distribution": {...}, "tconorm": "average"}``;
+    ``axes``: key -> list of values,
     e.g. ``{"tau": [1e-1, 1e-2], "lr": [0.05], "seed": [0, 1]}``; a tuple of keys takes tuples of
     values, ``{("angle_min", "angle_max"): [(15, 35), (35, 55)]}``), over ``base``."""
     axes = dict(axes or {})
@@ -64,7 +66,9 @@ def expand(experiment: str, base: dict | None = None, *, instances=(None,), axes
     for inst in instances:
         for values in itertools.product(*(axes[k] for k in keys)):
             ov = dict(base or {})
-            if inst is not None:
+            if isinstance(inst, dict):  # outside the grid: {"distribution": {...}, "tconorm": ...}
+                ov.update(inst)
+            elif inst is not None:
                 ov["instance"] = int(inst)
             for k, v in zip(keys, values):  # a tuple of keys takes a tuple of values (e.g. a pose bin)
                 ov.update(zip(k, v) if isinstance(k, tuple) else [(k, v)])
@@ -334,26 +338,34 @@ def best_setting_search(experiment: str, instances, *, taus, lrs, seeds=(0,), ba
     rows = execute(configs, store, **execute_kw)
     if refine:
         fine = []
+        from .common import instance_from_config
+        by_label = {instance_from_config(c)[2]: c for c in instances if isinstance(c, dict)}
         for inst, best in summarize_best(rows, experiment).items():
             ax = {tau_key: fine_grid(best[tau_key], fine_steps), "lr": [best["lr"]], "seed": list(seeds),
                   **(extra_axes or {})}
+            if isinstance(inst, str):
+                if inst not in by_label:
+                    continue  # a row of the store that this search did not ask for
+                inst = by_label[inst]
             fine += expand(experiment, base, instances=[inst], axes=ax)
         rows = rows + execute(fine, store, **execute_kw)
     return summarize_best(rows, experiment)
 
 
 def summarize_best(rows, experiment: str | None = None) -> dict:
-    """instance -> the best setting: ``{tau(_start), lr, score, mean_metric, (success_rate), n}``."""
+    """instance -> the best setting: ``{tau(_start), lr, score, mean_metric, (success_rate), n, label}``.
+    Runs outside the grid (no instance index, e.g. the "average" aggregation) are keyed by label."""
     rows = [r for r in rows if experiment is None or r["experiment"] == experiment]
     if not rows:
         return {}
     tau_key = EXPERIMENTS[rows[0]["experiment"]]
     best = {}
-    for (inst, tau, lr), grp in _group(rows, ("instance", tau_key, "lr")).items():
+    for (inst, label, tau, lr), grp in _group(rows, ("instance", "label", tau_key, "lr")).items():
         agg = aggregate(grp)
-        agg.update({tau_key: tau, "lr": lr, "label": grp[0].get("label")})
-        if inst not in best or agg["score"] < best[inst]["score"]:
-            best[inst] = agg
+        agg.update({tau_key: tau, "lr": lr, "label": label})
+        key = inst if inst is not None else label  # runs outside the grid (e.g. "average") by label
+        if key not in best or agg["score"] < best[key]["score"]:
+            best[key] = agg
     return best
 
 
