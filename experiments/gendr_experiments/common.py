@@ -23,7 +23,7 @@ __all__ = ["instance_from_config", "grid_instance", "make_renderer", "renderer_t
            "soft_iou_loss", "iou_loss_per_view", "mesh_laplacian", "laplacian_loss", "flatten_edges",
            "flatten_loss", "rotation_angle_deg", "axis_angle_to_matrix", "config_hash", "versions",
            "log_tau_schedule", "PAPER_DATA_ENV", "paper_data_dir", "resolve_data_path", "load_template",
-           "source_hash", "provenance", "file_digest"]
+           "source_hash", "provenance", "file_digest", "preset_config"]
 
 
 # ------------------------------------------------------------------------------------------------
@@ -60,6 +60,22 @@ def renderer_tau(width: float, squared: bool) -> float:
     """The Renderer's ``tau`` for a blur *width* in screen units: ``width`` for plain distributions,
     ``width**2`` for squared ones (their argument is d·|d|/τ), so both blur over the same distance."""
     return float(width) ** 2 if squared else float(width)
+
+
+def preset_config(experiment: str, presets: dict, config: dict | None, overrides: dict) -> dict:
+    """The full config of a run: the preset named by ``protocol`` (in ``overrides`` or ``config``;
+    default ``"quick"``), then ``config``, then ``overrides``. Unknown protocols or keys are a
+    :class:`~gendr.errors.ParameterError`."""
+    given = dict(config or {}, **overrides)
+    name = given.get("protocol", "quick")
+    if name not in presets:
+        raise ParameterError(f"unknown {experiment} protocol {name!r}; known: {sorted(presets)}")
+    cfg = dict(presets[name])
+    bad = sorted(set(given) - set(cfg))
+    if bad:
+        raise ParameterError(f"unknown {experiment} config keys {bad}; known: {sorted(cfg)}")
+    cfg.update(given)
+    return cfg
 
 
 def make_renderer(dist, tcn, tau, image_size, *, backend="torch", eps=1e-4, cutoff=None, **backend_options):

@@ -48,7 +48,8 @@ import gendr
 from gendr.errors import ParameterError
 
 from .common import (axis_angle_to_matrix, file_digest, instance_from_config, iou_loss_per_view,
-                     load_target_mesh, log_tau_schedule, make_renderer, random_rotation, resolve_data_path,
+                     load_target_mesh, log_tau_schedule, make_renderer, preset_config, random_rotation,
+                     resolve_data_path,
                      rotation_about, rotation_angle_deg)
 
 __all__ = ["POSE_DEFAULTS", "POSE_PRESETS", "pose_config", "run_pose", "PoseProblem", "LookAtPoseProblem",
@@ -106,15 +107,7 @@ POSE_PRESETS = {
 def pose_config(config: dict | None = None, **overrides) -> dict:
     """The full config of a run: the preset named by ``protocol`` (default ``"quick"``), then
     ``config``, then ``overrides``. Unknown keys are an error."""
-    given = dict(config or {}, **overrides)
-    name = given.get("protocol", "quick")
-    if name not in POSE_PRESETS:
-        raise ParameterError(f"unknown pose protocol {name!r}; known: {sorted(POSE_PRESETS)}")
-    cfg = dict(POSE_PRESETS[name])
-    bad = sorted(set(given) - set(cfg))
-    if bad:
-        raise ParameterError(f"unknown pose config keys {bad}; known: {sorted(cfg)}")
-    cfg.update(given)
+    cfg = preset_config("pose", POSE_PRESETS, config, overrides)
     cfg["betas"] = [float(b) for b in cfg["betas"]]  # one canonical form for the config hash
     if cfg["parametrization"] not in ("rotation", "lookat"):
         raise ParameterError(f"pose parametrization {cfg['parametrization']!r} must be 'rotation' or 'lookat'")

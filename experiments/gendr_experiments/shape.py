@@ -34,7 +34,7 @@ import gendr
 from gendr.errors import ParameterError
 
 from .common import (file_digest, flatten_edges, flatten_loss, instance_from_config, laplacian_loss,
-                     load_target_mesh, load_template, make_renderer, mesh_laplacian, renderer_tau,
+                     load_target_mesh, load_template, make_renderer, mesh_laplacian, preset_config, renderer_tau,
                      resolve_data_path, soft_iou_loss, iou_loss_per_view)
 
 __all__ = ["SHAPE_DEFAULTS", "SHAPE_PRESETS", "shape_config", "run_shape", "ShapeProblem", "SphereDeformer", "shape_cameras"]
@@ -109,16 +109,7 @@ class SphereDeformer(torch.nn.Module):
 def shape_config(config: dict | None = None, **overrides) -> dict:
     """The full config of a run: the preset named by ``protocol`` (in ``overrides`` or ``config``;
     default ``"quick"``), then ``config``, then ``overrides``. Unknown keys are an error."""
-    given = dict(config or {}, **overrides)
-    name = given.get("protocol", "quick")
-    if name not in SHAPE_PRESETS:
-        raise ParameterError(f"unknown shape protocol {name!r}; known: {sorted(SHAPE_PRESETS)}")
-    cfg = dict(SHAPE_PRESETS[name])
-    bad = sorted(set(given) - set(cfg))
-    if bad:
-        raise ParameterError(f"unknown shape config keys {bad}; known: {sorted(cfg)}")
-    cfg.update(given)
-    return cfg
+    return preset_config("shape", SHAPE_PRESETS, config, overrides)
 
 
 def shape_cameras(cfg: dict):
