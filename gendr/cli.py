@@ -184,6 +184,8 @@ def _render_specs(args):
 
 
 def cmd_render(args) -> int:
+    from .images import contact_sheet, require_pillow, write_png
+    require_pillow("gendr render")  # before rendering, not after
     dist, tcn, label = _render_specs(args)
     mesh, what = _resolve_mesh(args.mesh, normalize_files=not args.no_normalize)
     tau = args.tau if args.tau is not None else (1e-4 if dist.squared else 0.01)
@@ -202,7 +204,6 @@ def cmd_render(args) -> int:
                           vertex_colors=None if colors is None else colors.astype(dtype))
     images = _finish_image(renderer.to_numpy(img))
     seconds = time.perf_counter() - t0
-    from .png import contact_sheet, write_png
     if n is None:
         out = images[0]
     else:
@@ -229,8 +230,9 @@ def _composite(img: np.ndarray, background: float) -> np.ndarray:
 
 
 def cmd_demo(args) -> int:
+    from .images import contact_sheet, require_pillow, write_png
     from .scenes import SCENES, get_scene
-    from .png import contact_sheet, write_png
+    require_pillow("gendr demo")
     distribution, tconorm, Renderer = _api("distribution"), _api("tconorm"), _api("Renderer")
     scenes = list(SCENES) if not args.scenes else [s.strip() for s in args.scenes.split(",") if s.strip()]
     meshes = [get_scene(s) for s in scenes]  # validates names before any rendering
