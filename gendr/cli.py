@@ -498,8 +498,8 @@ def build_parser() -> argparse.ArgumentParser:
 def plugin_commands() -> dict[str, metadata.EntryPoint]:
     """Sub-commands other packages register under the ``gendr.commands`` entry-point group.
 
-    Returns name -> entry point, sorted by name. The entry point names a callable
-    ``main(argv: list[str]) -> int`` that parses its own arguments (``gendr NAME ARGS...`` calls
+    Returns name -> entry point, sorted by name. The entry point (``NAME = "module:main"``) names a
+    callable ``main(argv: list[str]) -> int`` that parses its own arguments (``gendr NAME ARGS...`` calls
     ``main(ARGS)``). A name that a built-in command already has, or that an earlier registration
     took, is skipped. Nothing is imported here.
     """
@@ -570,9 +570,8 @@ def _run_plugin(args) -> int:
         main = ep.load()
     except ImportError as exc:
         dist = getattr(getattr(ep, "dist", None), "name", None) or "its package"
-        extras = f"[{','.join(ep.extras)}]" if ep.extras else ""
-        raise GendrError(f"gendr {ep.name} is registered by {dist} ({ep.value}) but cannot be imported: {exc}; "
-                         f"install it with its dependencies (`pip install {dist}{extras}`)") from exc
+        raise GendrError(f"gendr {ep.name} is registered by {dist} ({ep.value}) but cannot be imported: {exc} "
+                         f"(install the optional dependencies of {dist} that it needs)") from exc
     try:
         code = main(list(args.plugin_args))
     except SystemExit as e:  # a plug-in whose argparse exits (--help, usage errors)

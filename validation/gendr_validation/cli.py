@@ -19,6 +19,17 @@ def _positive_int(text: str) -> int:
     return v
 
 
+def _import(name: str, command: str):
+    """``gendr_validation.<name>``, or a one-line error naming the extra to install."""
+    import importlib
+    try:
+        return importlib.import_module(f"{__package__}.{name}")
+    except ImportError as e:
+        from gendr.errors import BackendUnavailableError
+        raise BackendUnavailableError(f"gendr {command} needs the validation extra "
+                                      f"(pip install gendr[validation]): {e}") from e
+
+
 def _parse(parser: argparse.ArgumentParser, argv):
     """(namespace, None), or (None, exit status) for --help and usage errors."""
     try:
@@ -59,7 +70,7 @@ def validate_main(argv=None) -> int:
     args, code = _parse(validate_parser(), argv)
     if args is None:
         return code
-    from . import report
+    report = _import("report", "validate")
     quick = not args.full
     instances = args.instances or ("quick" if quick else "all")
     if instances not in ("quick", "all"):
@@ -87,7 +98,7 @@ def gallery_main(argv=None) -> int:
     args, code = _parse(gallery_parser(), argv)
     if args is None:
         return code
-    from . import gallery
+    gallery = _import("gallery", "gallery")
     files = gallery.generate(args.output, size=args.size)
     total = sum(f[1] for f in files)
     print(f"wrote {len(files)} figures ({total / 1e6:.2f} MB) to {args.output}")
