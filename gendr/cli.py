@@ -388,7 +388,9 @@ def _add_view_options(p, *, size_default: str):
                    help="coverage below eps is culled; 0 = exact dense rendering (default: %(default)s)")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(describe_plugins: bool = True) -> argparse.ArgumentParser:
+    """The ``gendr`` parser. ``describe_plugins=False`` leaves the plug-in commands' help lines
+    empty (reading them from the plug-ins' sources costs tens of ms that only ``--help`` needs)."""
     parser = argparse.ArgumentParser(
         prog=PROG, formatter_class=argparse.RawDescriptionHelpFormatter,
         description="gendr - a generalized differentiable mesh renderer (GenDR, Petersen et al., CVPR 2022).\n"
@@ -485,7 +487,7 @@ def build_parser() -> argparse.ArgumentParser:
     # plug-in commands (entry-point group gendr.commands), imported only when they run -------
     for name, ep in plugin_commands().items():
         p = sub.add_parser(name, add_help=False, prefix_chars="\0",  # every argument goes to the plug-in
-                           help=plugin_help(ep))
+                           help=plugin_help(ep) if describe_plugins else None)
         p.add_argument("plugin_args", nargs=argparse.REMAINDER)
         p.set_defaults(func=_run_plugin, plugin=ep)
     return parser
@@ -592,7 +594,8 @@ def main(argv=None) -> int:
 
     0 on success, 2 for usage errors and for errors gendr raises on purpose (printed as one line).
     """
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(describe_plugins=not argv or argv[0].startswith("-"))  # `gendr --help`
     try:
         args = parser.parse_args(argv)
     except SystemExit as e:  # --help, --version, usage errors
