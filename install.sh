@@ -6,7 +6,7 @@
 #
 # Steps: system packages (apt, only when APT_PACKAGES lists something missing) -> .venv with the
 # machine's python3 (>= 3.10) -> torch==2.13.0 (exact pin, installed first and alone) ->
-# `pip install -e ".[torch,drjit,validation,experiments,meshes]"` (+ `dev` with --dev) -> pyrender
+# `pip install -e ".[torch,drjit,images,validation,experiments,meshes]"` (+ `dev` with --dev) -> pyrender
 # with --no-deps -> sanity check and a short summary.
 #
 # Environment: GENDR_PYTHON (default python3) picks the interpreter for a new .venv.
@@ -56,7 +56,7 @@ cd "$ROOT"
 VENV="$ROOT/.venv"
 VPY="$VENV/bin/python"
 PYTHON="${GENDR_PYTHON:-python3}"
-EXTRAS="torch,drjit,validation,experiments,meshes"
+EXTRAS="torch,drjit,images,validation,experiments,meshes"
 [[ $DEV == 1 ]] && EXTRAS="$EXTRAS,dev"
 START=$SECONDS
 LOG="$(mktemp "${TMPDIR:-/tmp}/gendr-install.XXXXXX")"

@@ -4,7 +4,7 @@ The spec layer: distributions, T-conorms, cameras, the paper's grid and the :cla
 It imports no array backend; backends are plug-ins found through the ``gendr.backends`` entry point.
 """
 from .errors import (GendrError, UnknownNameError, ParameterError, ShapeError, DTypeError,
-                     InputValueError, BackendUnavailableError)
+                     InputValueError, BackendUnavailableError, DegenerateCameraError)
 from .distributions import Distribution, distribution, DISTRIBUTIONS
 from .tconorms import TConorm, tconorm, TCONORMS
 

@@ -8,6 +8,15 @@ element; unbatched parameters are shared by the whole batch.
 The projection is written once, against the ops namespace: :meth:`Camera.view_coords` maps world
 points into the camera frame, :meth:`Camera.ndc_affine` gives the per-axis projection
 ``x_ndc = sx·x/(−z) + ox`` (perspective, intrinsics) or ``x_ndc = sx·x + ox`` (orthographic).
+
+Values are checked once, here, by :meth:`Camera.check_values`: when the camera is constructed for the
+values given as Python numbers, sequences or NumPy arrays, and by every backend at render time for
+all of them (tensors included). Non-finite values raise :class:`~gendr.errors.InputValueError`,
+lens values out of their domain (``fov_y``, ``xmag``, ``ymag``, ``fx``, ``fy``)
+:class:`~gendr.errors.ParameterError`, and a pose without a defined view
+:class:`~gendr.errors.DegenerateCameraError`: ``eye`` on ``at`` (an orbit ``distance`` of 0), or ``up``
+parallel to the viewing direction, both within a relative tolerance :data:`DEGENERATE_RTOL`. The
+messages name the parameter, its value and, for a batch of cameras, the first bad batch element.
 """
 from __future__ import annotations
 
@@ -15,10 +24,17 @@ import math
 from dataclasses import dataclass, fields
 from typing import Any
 
-from .errors import ParameterError
+import numpy as np
+
+from .errors import DegenerateCameraError, InputValueError, ParameterError, ShapeError
+from .ops import numpy_ops
 
 #: kind of each array parameter, used by backends to convert them: "vec3" -> [B?, 3], "scalar" -> [B?]
 VEC3, SCALAR = "vec3", "scalar"
+#: eye and at coincide when |eye − at| <= DEGENERATE_RTOL·max(|eye|, |at|); up is parallel to the
+#: viewing direction when the sine of their angle is <= DEGENERATE_RTOL (~0.00006 degrees): float32
+#: arithmetic cannot tell such a view (or its roll) from a degenerate one
+DEGENERATE_RTOL = 1e-6
 
 
 @dataclass(frozen=True, eq=False)
@@ -37,6 +53,44 @@ class Orbit:
 def _check_positive(owner, name, value):
     if isinstance(value, (int, float)) and not (math.isfinite(value) and value > 0):
         raise ParameterError(f"{owner} parameter {name}={value!r} must be finite and > 0")
+
+
+def _plain(value) -> bool:
+    """A Python number, a NumPy number or array, or a (nested) sequence of them: checkable when the
+    camera is made. Anything else (a backend tensor) is checked at render time."""
+    if isinstance(value, np.ndarray):
+        return value.dtype.kind in "biuf"
+    if isinstance(value, (int, float, np.integer, np.floating)):
+        return True
+    return isinstance(value, (list, tuple)) and len(value) > 0 and all(_plain(v) for v in value)
+
+
+def batched(name: str, value, kind: str) -> np.ndarray:
+    """``value`` as float64 ``[n, 3]`` (vec3) or ``[n]`` (scalar); :class:`ShapeError` otherwise."""
+    a = np.asarray(value, dtype=np.float64)
+    if kind == VEC3:
+        a = a[None] if a.shape == (3,) else a
+        if a.ndim != 2 or a.shape[1] != 3:
+            raise ShapeError(f"camera parameter {name} must have shape [3] or [B, 3], got {list(a.shape)}")
+    else:
+        a = a[None] if a.ndim == 0 else a
+        if a.ndim != 1:
+            raise ShapeError(f"camera parameter {name} must be a scalar or have shape [B], got {list(a.shape)}")
+    return a
+
+
+def _fmt(a) -> str:
+    a = np.asarray(a, dtype=np.float64)
+    return f"{float(a):.8g}" if a.ndim == 0 else "(" + ", ".join(f"{float(x):.8g}" for x in a) + ")"
+
+
+def _first(bad: np.ndarray) -> int:
+    """Index of the first True of a 1-d boolean array that has one."""
+    return int(np.argmax(bad))
+
+
+def _norm(v):
+    return np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
 
 
 @dataclass(frozen=True, eq=False)
@@ -65,6 +119,78 @@ class Camera:
             _check_positive(name, f, v)
         if not self.far > self.near:
             raise ParameterError(f"{name} needs far > near, got near={self.near!r}, far={self.far!r}")
+        params = self.array_params()
+        plain = {k: v for k, v in params.items() if _plain(v[0])}
+        if plain:  # the rest (tensors) at render time, by the backend
+            self.check_values({k: batched(k, value, kind) for k, (value, kind) in plain.items()})
+
+    #: lens parameter -> (elementwise test, what the test requires), see :meth:`check_values`
+    _LENS_DOMAINS = {}
+
+    def check_values(self, values: dict) -> None:
+        """Check camera values; every backend calls this at render time.
+
+        ``values``: parameter name (of :meth:`array_params`) -> float64 NumPy array ``[n, 3]`` (vec3)
+        or ``[n]`` (scalar), n = 1 or the camera batch size B, for some or all of the parameters (a
+        check runs when the values it needs are given). Raises :class:`~gendr.errors.ShapeError`
+        (batch sizes that differ), :class:`~gendr.errors.InputValueError` (a non-finite value),
+        :class:`~gendr.errors.ParameterError` (a lens value out of its domain) or
+        :class:`~gendr.errors.DegenerateCameraError` (eye on at, up parallel to the view, up = 0).
+        """
+        cls, B = type(self).__name__, 1
+        for k, a in values.items():
+            if len(a) != 1:
+                if B not in (1, len(a)):
+                    raise ShapeError(f"camera parameter {k} has batch size {len(a)}, others have {B}")
+                B = len(a)
+
+        def member(i, n=B):
+            return f" (batch element {i} of {n})" if n > 1 else ""
+
+        for k, a in values.items():
+            if not np.isfinite(a).all():
+                i = _first(~np.isfinite(a.reshape(len(a), -1)).all(axis=1))
+                raise InputValueError(f"camera parameter {k} must be finite, got {_fmt(a[i])}{member(i, len(a))}")
+        for k, (ok, want) in self._LENS_DOMAINS.items():
+            if k in values and not ok(values[k]).all():
+                i = _first(~ok(values[k]))
+                raise ParameterError(f"{cls} parameter {k}={_fmt(values[k][i])} must be {want}"
+                                     f"{member(i, len(values[k]))}")
+        orbit = isinstance(self.eye, Orbit)
+        if not all(k in values for k in (("at", "azimuth", "elevation", "distance") if orbit else ("at", "eye"))):
+            return
+        # 3-tuples of [n] components (n = 1 or B, broadcasting), as the backends evaluate the pose
+        at = tuple(values["at"].T)
+        P = {"at": at, **{k: values[k] for k in ("azimuth", "elevation", "distance") if orbit}}
+        eye = self.eye_position(numpy_ops, P) if orbit else tuple(values["eye"].T)
+        back = tuple(e - c for e, c in zip(eye, at))
+        dist = _norm(back)
+        bad = dist <= DEGENERATE_RTOL * np.maximum(_norm(eye), _norm(at))
+
+        def row(v, i):  # element i of a broadcast 3-tuple or scalar array
+            return np.array([np.broadcast_to(c, (B,))[i] for c in v]) if isinstance(v, tuple) else np.broadcast_to(v, (B,))[i]
+
+        if bad.any():
+            i = _first(np.broadcast_to(bad, (B,)))
+            what = (f"orbit distance={_fmt(row(P['distance'], i))} puts eye={_fmt(row(eye, i))} on at={_fmt(row(at, i))}"
+                    if orbit else f"eye={_fmt(row(eye, i))} equals at={_fmt(row(at, i))}")
+            raise DegenerateCameraError(f"{cls}: {what}{member(i)}: the viewing direction is undefined")
+        if "up" not in values:
+            return
+        up = tuple(values["up"].T)
+        up_len = _norm(up)
+        if not (up_len > 0).all():
+            i = _first(np.broadcast_to(up_len == 0, (B,)))
+            raise DegenerateCameraError(f"{cls}: up={_fmt(row(up, i))} must not be the zero vector{member(i)}")
+        bad = _norm(_cross(up, back)) <= DEGENERATE_RTOL * up_len * dist
+        if bad.any():
+            i = _first(np.broadcast_to(bad, (B,)))
+            pose = (f"azimuth={_fmt(row(P['azimuth'], i))}, elevation={_fmt(row(P['elevation'], i))}, "
+                    f"distance={_fmt(row(P['distance'], i))} (eye={_fmt(row(eye, i))})" if orbit
+                    else f"eye={_fmt(row(eye, i))}")
+            raise DegenerateCameraError(
+                f"{cls}: up={_fmt(row(up, i))} is parallel to the viewing direction from {pose} to at={_fmt(row(at, i))}"
+                f"{member(i)}: the camera's roll is undefined; choose an up vector across the view")
 
     # --- what backends convert -------------------------------------------------------------
     def array_params(self) -> dict[str, tuple[Any, str]]:
@@ -131,10 +257,7 @@ class PerspectiveCamera(Camera):
 
     fov_y: Any = 40.0
 
-    def __post_init__(self):
-        super().__post_init__()
-        if isinstance(self.fov_y, (int, float)) and not 0 < self.fov_y < 180:
-            raise ParameterError(f"PerspectiveCamera parameter fov_y={self.fov_y!r} must lie in (0, 180) degrees")
+    _LENS_DOMAINS = {"fov_y": (lambda v: (v > 0) & (v < 180), "in (0, 180) degrees")}
 
     def _lens_params(self):
         return {"fov_y": (self.fov_y, SCALAR)}
@@ -153,10 +276,7 @@ class OrthographicCamera(Camera):
     ymag: Any = 1.0
     orthographic = True
 
-    def __post_init__(self):
-        super().__post_init__()
-        for f in ("xmag", "ymag"):
-            _check_positive("OrthographicCamera", f, getattr(self, f))
+    _LENS_DOMAINS = {"xmag": (lambda v: v > 0, "> 0"), "ymag": (lambda v: v > 0, "> 0")}
 
     def _lens_params(self):
         return {"xmag": (self.xmag, SCALAR), "ymag": (self.ymag, SCALAR)}
@@ -177,10 +297,7 @@ class IntrinsicsCamera(Camera):
     cx: Any = 64.0
     cy: Any = 64.0
 
-    def __post_init__(self):
-        super().__post_init__()
-        for f in ("fx", "fy"):
-            _check_positive("IntrinsicsCamera", f, getattr(self, f))
+    _LENS_DOMAINS = {"fx": (lambda v: v > 0, "> 0"), "fy": (lambda v: v > 0, "> 0")}
 
     def _lens_params(self):
         return {k: (getattr(self, k), SCALAR) for k in ("fx", "fy", "cx", "cy")}
@@ -198,8 +315,13 @@ def orbit_camera(azimuth, elevation, distance, *, at=(0.0, 0.0, 0.0), up=(0.0, 1
     ``ymag``); otherwise a :class:`PerspectiveCamera` with ``fov_y``.
     """
     eye = Orbit(azimuth, elevation, distance)
-    if isinstance(distance, (int, float)):
-        _check_positive("orbit_camera", "distance", distance)
+    if _plain(distance):
+        d = batched("distance", distance, SCALAR)
+        bad = ~(np.isfinite(d) & (d > 0))
+        if bad.any():
+            i = _first(bad)
+            where = f" (batch element {i} of {len(d)})" if len(d) > 1 else ""
+            raise ParameterError(f"orbit_camera parameter distance={_fmt(d[i])} must be finite and > 0{where}")
     if orthographic:
         return OrthographicCamera(eye=eye, at=at, up=up, near=near, far=far, xmag=ymag if xmag is None else xmag, ymag=ymag)
     return PerspectiveCamera(eye=eye, at=at, up=up, near=near, far=far, fov_y=fov_y)

@@ -8,6 +8,10 @@
 Errors raised on purpose by gendr (:class:`gendr.errors.GendrError`) are printed as one line
 ``gendr: error: ...`` with exit status 2, without a traceback. Only the spec layer is imported at
 start-up; the array backend (torch) is imported when something is rendered.
+
+Other packages add sub-commands through the ``gendr.commands`` entry-point group (this distribution
+registers ``validate`` and ``gallery`` from gendr_validation and ``experiment`` from
+gendr_experiments): see :func:`plugin_commands`. gendr imports a plug-in only to run it.
 """
 from __future__ import annotations
 
@@ -19,15 +23,20 @@ import os
 import re
 import sys
 import time
+from importlib import metadata
 from pathlib import Path
 
 import numpy as np
 
 from .errors import GendrError, InputValueError, ParameterError, UnknownNameError
 
-__all__ = ["main", "build_parser", "DEMO_INSTANCES"]
+__all__ = ["main", "build_parser", "plugin_commands", "DEMO_INSTANCES", "COMMAND_GROUP"]
 
 PROG = "gendr"
+#: entry-point group of plug-in sub-commands (``gendr validate``, ``gendr experiment``, a third party's)
+COMMAND_GROUP = "gendr.commands"
+#: commands of gendr itself; a plug-in cannot replace them
+BUILTIN_COMMANDS = ("render", "demo", "list")
 
 #: (column label, distribution kwargs, tconorm kwargs, RGB blend) of the columns of ``gendr demo``. The
 #: demo's ``--tau`` is used as is for plain distributions and squared (tau**2) for squared ones, so
@@ -175,6 +184,8 @@ def _render_specs(args):
 
 
 def cmd_render(args) -> int:
+    from .images import contact_sheet, require_pillow, write_png
+    require_pillow("gendr render")  # before rendering, not after
     dist, tcn, label = _render_specs(args)
     mesh, what = _resolve_mesh(args.mesh, normalize_files=not args.no_normalize)
     tau = args.tau if args.tau is not None else (1e-4 if dist.squared else 0.01)
@@ -193,7 +204,6 @@ def cmd_render(args) -> int:
                           vertex_colors=None if colors is None else colors.astype(dtype))
     images = _finish_image(renderer.to_numpy(img))
     seconds = time.perf_counter() - t0
-    from .png import contact_sheet, write_png
     if n is None:
         out = images[0]
     else:
@@ -220,8 +230,9 @@ def _composite(img: np.ndarray, background: float) -> np.ndarray:
 
 
 def cmd_demo(args) -> int:
+    from .images import contact_sheet, require_pillow, write_png
     from .scenes import SCENES, get_scene
-    from .png import contact_sheet, write_png
+    require_pillow("gendr demo")
     distribution, tconorm, Renderer = _api("distribution"), _api("tconorm"), _api("Renderer")
     scenes = list(SCENES) if not args.scenes else [s.strip() for s in args.scenes.split(",") if s.strip()]
     meshes = [get_scene(s) for s in scenes]  # validates names before any rendering
@@ -347,6 +358,12 @@ def cmd_list(args) -> int:
         backends = _api("available_backends")()
         for name, ep in sorted(backends.items()):
             print(f"  {name:10s} {ep.value}")
+    elif what == "commands":
+        print(f"built-in: {', '.join(BUILTIN_COMMANDS)}")
+        print(f"plug-ins (entry-point group {COMMAND_GROUP}):")
+        for name, ep in plugin_commands().items():
+            dist = getattr(getattr(ep, "dist", None), "name", None) or "?"
+            print(f"  {name:12s} {ep.value}  ({dist}): {plugin_help(ep)}")
     return 0
 
 
@@ -378,7 +395,9 @@ def _add_view_options(p, *, size_default: str):
                    help="coverage below eps is culled; 0 = exact dense rendering (default: %(default)s)")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(describe_plugins: bool = True) -> argparse.ArgumentParser:
+    """The ``gendr`` parser. ``describe_plugins=False`` leaves the plug-in commands' help lines
+    empty (reading them from the plug-ins' sources costs tens of ms that only ``--help`` needs)."""
     parser = argparse.ArgumentParser(
         prog=PROG, formatter_class=argparse.RawDescriptionHelpFormatter,
         description="gendr - a generalized differentiable mesh renderer (GenDR, Petersen et al., CVPR 2022).\n"
@@ -390,7 +409,8 @@ def build_parser() -> argparse.ArgumentParser:
                "  gendr render model.obj -o soft.png --distribution gamma --dist-param shape=0.5 --reversed\n"
                "  gendr render chair -o sheet.png --batch-views 8 --size 128\n"
                "  gendr demo -o demo_out                  # every scene x six renderers in one contact sheet\n"
-               "\nrun `gendr COMMAND --help` for the options of each command.")
+               "\nrun `gendr COMMAND --help` for the options of each command. Commands after `list` are\n"
+               f"plug-ins (entry-point group {COMMAND_GROUP}; `gendr list commands`).")
     parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
@@ -466,77 +486,107 @@ def build_parser() -> argparse.ArgumentParser:
     # list --------------------------------------------------------------------------------------
     p = sub.add_parser(
         "list", formatter_class=_Formatter,
-        help="list distributions, T-conorms, scenes, the paper grid or backends",
+        help="list distributions, T-conorms, scenes, the paper grid, backends or commands",
         description="Print the names (and parameters) of what can be chosen.",
         epilog="examples:\n  gendr list distributions\n  gendr list grid | grep yager")
-    p.add_argument("what", choices=("distributions", "tconorms", "scenes", "grid", "backends"))
+    p.add_argument("what", choices=("distributions", "tconorms", "scenes", "grid", "backends", "commands"))
     p.set_defaults(func=cmd_list)
 
-    # validate ----------------------------------------------------------------------------------
-    p = sub.add_parser(
-        "validate", formatter_class=_Formatter,
-        help="check hard-limit silhouettes against pyrender/Mitsuba and gradients against finite differences",
-        description="Run the validation (docs/validation.md): gendr's hard-limit silhouettes vs pyrender and "
-                    "Mitsuba 3 pixel by pixel, and AD gradients vs float64 central finite differences. Writes "
-                    "OUTDIR/report.html (self-contained) and OUTDIR/summary.json; exit status 1 if a check fails.",
-        epilog="examples:\n"
-               "  gendr validate --quick -o validation_report      # < 2 minutes\n"
-               "  gendr validate --full -o full_report --instances all --jobs 2\n"
-               "  gendr validate --instances 0,271 --scenes cube,torus --backends torch -o r")
-    p.add_argument("-o", "--output", default="validation_report", metavar="OUTDIR", help="directory to write into (default: %(default)s)")
-    mode = p.add_mutually_exclusive_group()
-    mode.add_argument("--quick", action="store_true", help="48x64, 7 scenes, 4 cameras, 7 limit instances, 8 gradient instances (default)")
-    mode.add_argument("--full", action="store_true", help="96x128, every scene and camera, all 47 limit instances, all gradient instances")
-    p.add_argument("--backends", default=None, metavar="A,B", help="backends to check (default: every one that imports)")
-    p.add_argument("--instances", default=None, metavar="SPEC",
-                   help="gradient-check instances of the paper grid: comma-separated indices, 'all' or 'quick'")
-    p.add_argument("--scenes", default=None, metavar="A,B", help="built-in scenes for the hard-limit check")
-    p.add_argument("--mesh", action="append", default=None, metavar="FILE", help="also check a mesh file (repeatable)")
-    p.add_argument("--references", default=None, metavar="A,B",
-                   help="pyrender-osmesa, pyrender-egl, mitsuba-scalar_rgb, mitsuba-llvm_ad_rgb (default: pyrender-osmesa,mitsuba-scalar_rgb)")
-    p.add_argument("--progress", action="store_true", help="show progress bars even when stderr is not a terminal")
-    p.add_argument("--jobs", type=_positive_int, default=1, metavar="N",
-                   help="run the gradient checks in N single-threaded worker processes (default: %(default)s)")
-    p.set_defaults(func=_cmd_validate)
-
-    # gallery -----------------------------------------------------------------------------------
-    p = sub.add_parser(
-        "gallery", formatter_class=_Formatter,
-        help="regenerate the documentation figures (distributions, T-conorms, renders across tau)",
-        description="Write PNG figures for the docs: every distribution's CDF and density, a rendered triangle per "
-                    "distribution, T-conorm surfaces and renders across tau.",
-        epilog="examples:\n  gendr gallery -o docs/gallery")
-    p.add_argument("-o", "--output", default="docs/gallery", metavar="OUTDIR", help="directory (default: %(default)s)")
-    p.add_argument("--size", type=int, default=64, help="render size in pixels (default: %(default)s)")
-    p.set_defaults(func=_cmd_gallery)
-
-    # experiment (gendr_experiments, imported only when this command runs) ---------------------
-    p = sub.add_parser(
-        "experiment", add_help=False, prefix_chars="\0",  # every argument goes to gendr_experiments
-        help="the paper's experiments: shape, pose, sweep, figures, recon (`gendr experiment --help`)")
-    p.add_argument("experiment_args", nargs=argparse.REMAINDER)
-    p.set_defaults(func=cmd_experiment)
+    # plug-in commands (entry-point group gendr.commands), imported only when they run -------
+    for name, ep in plugin_commands().items():
+        p = sub.add_parser(name, add_help=False, prefix_chars="\0",  # every argument goes to the plug-in
+                           help=plugin_help(ep) if describe_plugins else None)
+        p.add_argument("plugin_args", nargs=argparse.REMAINDER)
+        p.set_defaults(func=_run_plugin, plugin=ep)
     return parser
 
 
-def cmd_experiment(args) -> int:
-    """``gendr experiment ...``: delegate to :func:`gendr_experiments.cli.main` (imported lazily)."""
+# ------------------------------------------------------------------------------------------------
+# plug-in commands
+# ------------------------------------------------------------------------------------------------
+
+def plugin_commands() -> dict[str, metadata.EntryPoint]:
+    """Sub-commands other packages register under the ``gendr.commands`` entry-point group.
+
+    Returns name -> entry point, sorted by name. The entry point (``NAME = "module:main"``) names a
+    callable ``main(argv: list[str]) -> int`` that parses its own arguments (``gendr NAME ARGS...`` calls
+    ``main(ARGS)``). A name that a built-in command already has, or that an earlier registration
+    took, is skipped. Nothing is imported here.
+    """
+    found = {}
+    for ep in metadata.entry_points(group=COMMAND_GROUP):
+        if ep.name not in BUILTIN_COMMANDS and ep.name not in found:
+            found[ep.name] = ep
+    return dict(sorted(found.items()))
+
+
+def plugin_help(ep: metadata.EntryPoint) -> str:
+    """One line for ``gendr --help``: the first sentence of the docstring of the entry point's object
+    (else of its module), read from the source file without importing the plug-in (importing
+    gendr_experiments imports torch: seconds); a generic line where the source cannot be read."""
+    module, _, attr = ep.value.partition(":")
+    doc = _source_docstring(module.strip(), attr.split("[")[0].strip())
+    dist = getattr(getattr(ep, "dist", None), "name", None)
+    if not doc:
+        return f"a plug-in command{f' from {dist}' if dist else ''}"
+    line = _first_sentence(doc)
+    return line[:1].lower() + line[1:] if line[1:2].islower() else line  # as argparse's own lines
+
+
+def _source_file(module: str) -> Path | None:
+    """The .py file of ``module``, found without importing it or its parent packages."""
+    import importlib.util
+    top, *parts = module.split(".")
     try:
-        from gendr_experiments.cli import main as experiment_main
+        spec = importlib.util.find_spec(top)  # a top-level name is found, not imported
+    except (ImportError, ValueError):
+        return None
+    if spec is None or not spec.origin:
+        return None
+    path, dirs = Path(spec.origin), list(spec.submodule_search_locations or ())
+    for part in parts:
+        for d in dirs:
+            if (Path(d) / part / "__init__.py").is_file():
+                path, dirs = Path(d) / part / "__init__.py", [Path(d) / part]
+                break
+            if (Path(d) / f"{part}.py").is_file():
+                path, dirs = Path(d) / f"{part}.py", []
+                break
+        else:
+            return None
+    return path if path.suffix == ".py" else None
+
+
+def _source_docstring(module: str, attr: str) -> str | None:
+    import ast
+    path = _source_file(module)
+    if path is None:
+        return None
+    try:
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+    except (OSError, SyntaxError, UnicodeDecodeError, ValueError):
+        return None
+    for node in tree.body:
+        if (isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)) and node.name == attr
+                and ast.get_docstring(node)):
+            return ast.get_docstring(node)
+    return ast.get_docstring(tree)
+
+
+def _run_plugin(args) -> int:
+    """``gendr NAME ARGS...``: import the plug-in's ``main`` and call ``main(ARGS)``."""
+    ep = args.plugin
+    try:
+        main = ep.load()
     except ImportError as exc:
-        raise GendrError(f"gendr experiment needs the gendr_experiments package and its extra "
-                         f"(`pip install -e .[experiments]`): {exc}") from exc
-    return experiment_main(args.experiment_args or ["--help"])
-
-
-def _cmd_validate(args) -> int:
-    from gendr_validation.cli import validate_main  # lazy: needs the validation extra
-    return validate_main(args)
-
-
-def _cmd_gallery(args) -> int:
-    from gendr_validation.cli import gallery_main
-    return gallery_main(args)
+        dist = getattr(getattr(ep, "dist", None), "name", None) or "its package"
+        raise GendrError(f"gendr {ep.name} is registered by {dist} ({ep.value}) but cannot be imported: {exc} "
+                         f"(install the optional dependencies of {dist} that it needs)") from exc
+    try:
+        code = main(list(args.plugin_args))
+    except SystemExit as e:  # a plug-in whose argparse exits (--help, usage errors)
+        code = e.code if isinstance(e.code, int) or e.code is None else 2
+    return 0 if code is None else int(code)
 
 
 def _version() -> str:
@@ -552,7 +602,8 @@ def main(argv=None) -> int:
 
     0 on success, 2 for usage errors and for errors gendr raises on purpose (printed as one line).
     """
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(describe_plugins=not argv or argv[0].startswith("-"))  # `gendr --help`
     try:
         args = parser.parse_args(argv)
     except SystemExit as e:  # --help, --version, usage errors

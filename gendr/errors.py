@@ -25,6 +25,10 @@ class DTypeError(GendrError, TypeError):
     """An array of an unsupported dtype."""
 
 
+class DegenerateCameraError(ParameterError):
+    """A camera pose without a defined view: eye on at, or up parallel to the viewing direction."""
+
+
 class InputValueError(GendrError, ValueError):
     """Input values that are invalid: non-finite vertices, face indices out of range, ..."""
 

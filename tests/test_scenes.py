@@ -216,6 +216,6 @@ def test_load_mesh_errors(tmp_path):
 
 
 def test_import_gendr_scenes_does_not_import_torch_or_trimesh():
-    code = ("import sys, gendr, gendr.scenes, gendr.png, gendr.cli; "
-            "assert 'torch' not in sys.modules; assert 'trimesh' not in sys.modules")
+    code = ("import sys, gendr, gendr.scenes, gendr.images, gendr.cli; "
+            "assert 'torch' not in sys.modules; assert 'trimesh' not in sys.modules; assert 'PIL' not in sys.modules")
     subprocess.run([sys.executable, "-c", code], check=True)

@@ -26,12 +26,26 @@ def test_report_smoke(tmp_path):
 
 def test_cli_validate_exit_code(tmp_path, capsys):
     out = tmp_path / "r"
-    code = main(["validate", "--backends", "torch", "--scenes", "tetrahedron", "--instances", "0", "-o", str(out)])
+    code = main(["validate", "--backends", "torch", "--scenes", "tetrahedron", "--instances", "0", "-o", str(out),
+                 "--progress"])
     js = json.loads((out / "summary.json").read_text())
     assert code == (0 if js["passed"] else 1)
     failed = {(r["instance"], r["param"]) for r in js["gradients"]["rows"] if not r["passed"]}
     assert failed == set() and code == 0
-    assert "hard limit:" in capsys.readouterr().out
+    captured = capsys.readouterr()
+    assert "hard limit:" in captured.out
+    # --progress: tqdm bars on stderr although it is not a terminal, each ending full
+    n_hl = js["hard_limit"]["checks"] // len(js["references"])
+    assert "hard-limit: 100%" in captured.err and f"{n_hl}/{n_hl}" in captured.err
+    assert "gradients: 100%" in captured.err and "1/1" in captured.err
+
+
+def test_progress_bar_only_on_a_terminal_unless_forced(capsys):
+    for enabled, shown in ((None, False), (False, False), (True, True)):  # pytest's stderr is no terminal
+        with report._progress(3, "checks", enabled) as bar:
+            for _ in range(3):
+                bar.update()
+        assert ("checks: 100%" in capsys.readouterr().err) is shown
 
 
 def test_cli_validate_bad_instance(tmp_path, capsys):

@@ -14,7 +14,7 @@ import numpy as np
 import drjit as dr
 
 from gendr.cameras import VEC3
-from gendr.errors import BackendUnavailableError, DTypeError, InputValueError, ParameterError, ShapeError
+from gendr.errors import BackendUnavailableError, DTypeError, ParameterError, ShapeError
 
 from . import raster
 from .ops import DrJitOps
@@ -253,7 +253,7 @@ class DrJitBackend:
         if colors is not None:
             cflat = self._flat(wrapped.get("colors", colors.data if colors.kind != "torch" else None), colors, T)
             col = (cflat, colors.shape[0] if len(colors.shape) == 3 else 1)
-        P, Bc = {}, 1
+        P, Bc, values = {}, 1, {}
         for name, (value, kind) in cam.items():
             v = wrapped.get("cam:" + name, value)
             arr, shape = self._param(v, T)
@@ -267,9 +267,7 @@ class DrJitBackend:
                     shape = (1,)
                 if len(shape) != 1:
                     raise ShapeError(f"camera parameter {name} must be a scalar or have shape [B], got {list(shape)}")
-            vals = dr.detach(arr).numpy()
-            if not np.all(np.isfinite(vals)):
-                raise InputValueError(f"camera parameter {name} must be finite, got {np.asarray(vals).reshape(shape).tolist()}")
+            values[name] = np.asarray(dr.detach(arr).numpy(), dtype=np.float64).reshape(shape)
             n = shape[0]
             if n != 1:
                 if Bc not in (1, n):
@@ -280,6 +278,7 @@ class DrJitBackend:
                 P[name] = tuple(self._opaque(dr.gather(T.Float, arr, idx + c), T) for c in range(3))
             else:
                 P[name] = self._opaque(arr, T)
+        camera.check_values(values)  # the spec's checks: non-finite, lens domains, eye on at, up along the view
         if Bv != 1 and Bc != 1 and Bv != Bc:
             raise ShapeError(f"vertex batch size {Bv} and camera batch size {Bc} do not match")
         t = wrapped.get("tau", tau)

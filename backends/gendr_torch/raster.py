@@ -16,11 +16,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 from torch.utils.checkpoint import checkpoint
 
 from gendr.cameras import VEC3
-from gendr.errors import InputValueError, ShapeError
+from gendr.errors import ShapeError
 from gendr.renderer import LAMBERT_KINK_ULPS
 from gendr.tconorms import MAX, MEAN
 
@@ -31,8 +32,9 @@ from .ops import torch_ops as ops
 # camera parameters -> tensors
 # ---------------------------------------------------------------------------------------------
 def camera_tensors(camera, dtype, device):
-    """Convert the camera's array parameters; returns (P, batch) with P's arrays shaped [Bc, 1]."""
-    P, batch = {}, 1
+    """Convert and check (:meth:`gendr.cameras.Camera.check_values`) the camera's array parameters;
+    returns (P, batch) with P's arrays shaped [Bc, 1]."""
+    P, batch, values = {}, 1, {}
     for name, (value, kind) in camera.array_params().items():
         t = value.to(device=device, dtype=dtype) if isinstance(value, torch.Tensor) else torch.as_tensor(value, dtype=dtype, device=device)
         if kind == VEC3:
@@ -45,14 +47,18 @@ def camera_tensors(camera, dtype, device):
                 t = t[None]
             if t.ndim != 1:
                 raise ShapeError(f"camera parameter {name} must be a scalar or have shape [B], got {list(t.shape)}")
-        if not bool(torch.isfinite(t).all()):
-            raise InputValueError(f"camera parameter {name} must be finite, got {t.detach().cpu().tolist()}")
         n = t.shape[0]
         if n != 1:
             if batch not in (1, n):
                 raise ShapeError(f"camera parameter {name} has batch size {n}, others have {batch}")
             batch = n
         P[name] = tuple(t[:, k, None] for k in range(3)) if kind == VEC3 else t[:, None]
+        values[name] = t
+    # the spec's checks (non-finite, lens domains, eye on at, up along the view) on one host copy
+    host = torch.cat([t.detach().reshape(-1) for t in values.values()]).to("cpu", torch.float64).numpy()
+    sizes = [t.numel() for t in values.values()]
+    camera.check_values({name: part.reshape(values[name].shape)
+                         for name, part in zip(values, np.split(host, np.cumsum(sizes)[:-1]))})
     return P, batch
 
 

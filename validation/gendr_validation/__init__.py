@@ -3,7 +3,7 @@
 Independent of the backends' internals: it renders through the public :class:`gendr.Renderer` API
 and compares with pyrender and Mitsuba 3 (:mod:`.references`). Entry points:
 
-* ``gendr validate [--quick|--full] -o OUTDIR`` (:func:`.cli.validate_main`): HTML report + JSON summary;
+* ``gendr validate [--quick|--full] -o OUTDIR`` (:func:`.cli.validate_main`, a ``gendr.commands`` plug-in): HTML report + JSON summary;
 * ``gendr gallery -o docs/gallery`` (:mod:`.gallery`): the documentation figures;
 * ``python -m gendr_validation.goldens --regenerate`` (:mod:`.goldens`): the regression goldens.
 

@@ -16,6 +16,7 @@ import time
 from dataclasses import asdict
 
 import numpy as np
+from tqdm import tqdm
 
 import gendr
 from gendr import scenes as gscenes
@@ -27,24 +28,10 @@ QUICK_SIZE = (48, 64)
 FULL_SIZE = (96, 128)
 
 
-class Progress:
-    """A one-line progress bar on stderr (only when it is a terminal or forced)."""
-
-    def __init__(self, total, label, stream=None, enabled=None):
-        self.total, self.done, self.label = max(total, 1), 0, label
-        self.stream = stream or sys.stderr
-        self.enabled = self.stream.isatty() if enabled is None else enabled
-        self.t0 = time.perf_counter()
-
-    def __call__(self, n=1):
-        self.done += n
-        if self.enabled:
-            frac = self.done / self.total
-            bar = "#" * int(30 * frac)
-            self.stream.write(f"\r{self.label:10s} [{bar:30s}] {self.done}/{self.total} {time.perf_counter() - self.t0:6.1f}s")
-            if self.done >= self.total:
-                self.stream.write("\n")
-            self.stream.flush()
+def _progress(total: int, label: str, enabled):
+    """A tqdm bar on stderr, shown when stderr is a terminal (``enabled`` None) or when forced (True)."""
+    return tqdm(total=total, desc=label, unit="check", file=sys.stderr, dynamic_ncols=True,
+                disable=None if enabled is None else not enabled)
 
 
 def _png_b64(img) -> str:
@@ -186,12 +173,13 @@ def _run(backends, instances, scenes, quick, outdir, references, limit_instances
 
     # --- hard limit -----------------------------------------------------------------------------
     n_hl = len(meshes) * len(cam_names) * len(bnames) * len(lim)
-    prog = Progress(n_hl, "hard-limit", enabled=progress)
     checks = []
     t0 = time.perf_counter()
-    for s, mesh in meshes.items():
-        for cn in cam_names:
-            checks.append(hardlimit.check_scene_camera(s, mesh, cn, cams_all[cn], H, W, bnames, refs, lim, prog))
+    with _progress(n_hl, "hard-limit", progress) as bar:
+        for s, mesh in meshes.items():
+            for cn in cam_names:
+                checks.append(hardlimit.check_scene_camera(s, mesh, cn, cams_all[cn], H, W, bnames, refs, lim,
+                                                           bar.update))
     t_hl = time.perf_counter() - t0
 
     # --- gradients -----------------------------------------------------------------------------
@@ -200,27 +188,27 @@ def _run(backends, instances, scenes, quick, outdir, references, limit_instances
     for b in bnames:
         if b not in gradcheck.ADAPTERS:
             notes.append(f"gradient check: no gradient adapter for backend {b!r} (validation/gendr_validation/gradcheck.py ADAPTERS)")
-    prog = Progress(len(gb) * len(ginst), "gradients", enabled=progress)
     t0 = time.perf_counter()
     tasks = [(b, inst.index, k < 3) for b in gb for k, inst in enumerate(ginst)]
-    if jobs > 1 and len(tasks) > 1:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
-        with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn"),
-                                 initializer=_single_threaded) as pool:
-            outcomes = pool.map(_grad_task, tasks, chunksize=4)
-            for (b, index, _), (res, imgs) in zip(tasks, outcomes):
+    with _progress(len(tasks), "gradients", progress) as bar:
+        if jobs > 1 and len(tasks) > 1:
+            import multiprocessing
+            from concurrent.futures import ProcessPoolExecutor
+            with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn"),
+                                     initializer=_single_threaded) as pool:
+                outcomes = pool.map(_grad_task, tasks, chunksize=4)
+                for (b, index, _), (res, imgs) in zip(tasks, outcomes):
+                    grad_results += res
+                    if imgs:
+                        grad_images[(b, index)] = imgs
+                    bar.update()
+        else:
+            for b, index, keep in tasks:
+                res, imgs = _grad_task((b, index, keep))
                 grad_results += res
                 if imgs:
                     grad_images[(b, index)] = imgs
-                prog()
-    else:
-        for b, index, keep in tasks:
-            res, imgs = _grad_task((b, index, keep))
-            grad_results += res
-            if imgs:
-                grad_images[(b, index)] = imgs
-            prog()
+                bar.update()
     parity = gradcheck.backend_parity(bnames, ginst)
     t_grad = time.perf_counter() - t0
 
