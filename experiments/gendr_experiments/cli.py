@@ -485,6 +485,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    """Run the paper's experiments: shape and pose optimisation, sweeps, findings, verify, figures."""
     parser = build_parser()
     try:
         a = parser.parse_args(argv)
