@@ -203,23 +203,11 @@ def write_csv(rows, path, columns=("key", "experiment", "instance", "label", "di
             w.writerow({k: r.get(k) for k in columns})
 
 
-class _Progress:
-    def __init__(self, total, skipped, stream=None, width=30):
-        self.total, self.skipped, self.done, self.width = total, skipped, 0, width
-        self.stream = stream if stream is not None else sys.stderr
-        self.t0 = time.perf_counter()
-
-    def update(self, row=None):
-        self.done += 1
-        el = time.perf_counter() - self.t0
-        eta = el / self.done * (self.total - self.done) if self.done else 0.0
-        fill = int(self.width * self.done / max(self.total, 1))
-        m = "" if row is None else f" last: {row.get('label')} metric={row.get('metric')}"
-        self.stream.write(f"\r[{'#' * fill}{'-' * (self.width - fill)}] {self.done}/{self.total} "
-                          f"(skipped {self.skipped} finished) {el:6.0f}s eta {eta:6.0f}s{m[:60]:60s}")
-        if self.done == self.total:
-            self.stream.write("\n")
-        self.stream.flush()
+def _progress_bar(total, skipped, stream=None):
+    """A tqdm bar over the runs still to do (the finished ones are counted in its description)."""
+    from tqdm import tqdm
+    return tqdm(total=total, desc=f"runs (skipped {skipped} finished)", unit="run", file=stream or sys.stderr,
+                dynamic_ncols=True, mininterval=0.5)
 
 
 OTHER_CODE = ("refuse", "keep", "rerun")
@@ -257,12 +245,13 @@ def execute(configs, store: ResultStore | str, *, workers: int | None = None, sc
             f"other_code='keep' (CLI --other-code keep) to count them as done, or 'rerun' to run them again")
     done = set(finished) - (set(stale) if other_code == "rerun" else set())
     todo = [(k, c) for k, c in keyed.items() if k not in done]
-    bar = _Progress(len(todo), len(keyed) - len(todo), stream) if progress and todo else None
+    bar = _progress_bar(len(todo), len(keyed) - len(todo), stream) if progress and todo else None
 
     def finish(row):
         store.append(row)
         if bar:
-            bar.update(row)
+            bar.set_postfix_str(f"last: {row.get('label')} metric={row.get('metric')}"[:70], refresh=False)
+            bar.update(1)
 
     if todo:
         if scheduler is not None:
@@ -285,6 +274,8 @@ def execute(configs, store: ResultStore | str, *, workers: int | None = None, sc
                 futs = [ex.submit(run_config, c) for _, c in todo]
                 for fut in as_completed(futs):
                     finish(fut.result())
+    if bar:
+        bar.close()
     rows = {r["key"]: r for r in store.rows()}
     return [rows[k] for k in keyed if k in rows]
 
