@@ -194,3 +194,15 @@ def test_learnable_p_keeps_the_x_gradients(family, p0):
         gendr.tconorm(family, p=p).aggregate(ops, [x, y]).sum().backward()
         grads.append(x.grad.numpy())
     np.testing.assert_allclose(grads[1], grads[0], rtol=1e-12, atol=0)
+
+
+@pytest.mark.parametrize("backend", _backends())
+def test_validation_suite_checks_p_of_every_family(backend):
+    """gendr validate's gradient check covers ∂/∂p: one quick instance per parametric family."""
+    gc = pytest.importorskip("gendr_validation.gradcheck")
+    insts = [i for i in gc.select_instances("quick") if gc.has_p(i)]
+    assert {i.tconorm.name for i in insts} == set(FAMILIES)
+    adapter = gc.ADAPTERS[backend]()
+    for inst in insts:
+        (r,), _ = gc.check_instance(adapter, inst, params=("p",))
+        assert r.param == "p" and r.passed, (inst.name, r.pixel_mean, r.pixel_max, r.loss_err)
