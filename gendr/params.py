@@ -29,10 +29,66 @@ class Param:
     doc: str = ""
 
 
-def validate_params(owner: str, declared: tuple[Param, ...], given: Mapping[str, object]) -> dict[str, float]:
+class Learnable(float):
+    """A parameter value that is also a backend array: a *learnable* parameter.
+
+    It is the array's value as a Python float (structure decisions in the spec formulas, labels and
+    domain checks read it as a float), and carries the array itself in :attr:`array`: the formulas
+    that support learnable parameters do their arithmetic with :func:`array_of` (so gradients reach
+    the array). Arithmetic on the float itself (``p - 1.0``) is a plain float, without gradient.
+    ``array`` is a 0-d (or single-element) torch tensor or Dr.Jit array, any dtype the backend casts.
+    """
+
+    __slots__ = ("array",)
+
+    def __new__(cls, value, array):
+        self = super().__new__(cls, value)
+        self.array = array
+        return self
+
+    def __repr__(self):
+        return f"Learnable({float(self)!r})"
+
+    def __reduce__(self):  # pickles (e.g. to worker processes) as the plain float
+        return float, (float(self),)
+
+
+def array_of(v):
+    """The differentiable value of a parameter: the array of a :class:`Learnable`, else ``v``."""
+    return v.array if isinstance(v, Learnable) else v
+
+
+def is_backend_array(v) -> bool:
+    """True for torch tensors and Dr.Jit arrays (the values a parameter may be learnable as)."""
+    mod = type(v).__module__ or ""
+    return mod.startswith("torch") or mod.startswith("drjit")
+
+
+def array_value(owner: str, name: str, raw) -> float:
+    """The float value of a scalar backend array ``raw`` (torch: detached; Dr.Jit: via NumPy).
+
+    Raises :class:`ParameterError` when it is not a single number."""
+    shape = tuple(getattr(raw, "shape", ()))
+    if shape not in ((), (1,)):
+        raise ParameterError(f"{owner} parameter {name} must be a scalar (0-d) array, got shape {list(shape)}")
+    try:
+        if hasattr(raw, "detach") and hasattr(raw, "item"):  # torch
+            return float(raw.detach().reshape(-1)[0].item())
+        if hasattr(raw, "numpy"):  # Dr.Jit
+            import numpy as np
+            return float(np.asarray(raw.numpy()).reshape(-1)[0])
+        return float(raw)
+    except (TypeError, ValueError, IndexError, RuntimeError):
+        raise ParameterError(f"{owner} parameter {name}={raw!r} must be a number") from None
+
+
+def validate_params(owner: str, declared: tuple[Param, ...], given: Mapping[str, object],
+                    learnable: bool = False) -> dict[str, float]:
     """Return ``{name: float}`` for every declared parameter, or raise :class:`ParameterError`.
 
-    ``owner`` names the family in messages, e.g. ``"tconorm 'yager'"``.
+    ``owner`` names the family in messages, e.g. ``"tconorm 'yager'"``. With ``learnable``, a
+    torch tensor or Dr.Jit array value is checked (scalar, in the domain at its current value) and
+    returned as a :class:`Learnable` that keeps the array; otherwise every value becomes a float.
     """
     names = [p.name for p in declared]
     for key in given:
@@ -47,6 +103,13 @@ def validate_params(owner: str, declared: tuple[Param, ...], given: Mapping[str,
             raw = p.default
         else:
             raise ParameterError(f"{owner} needs parameter {p.name!r} ({p.constraint.description})")
+        if learnable and is_backend_array(raw):
+            value = array_value(owner, p.name, raw)
+            if not p.constraint.check(value):
+                raise ParameterError(f"{owner} parameter {p.name}={value!r} (a {type(raw).__name__}) is out of "
+                                     f"domain: expected {p.constraint.description}")
+            out[p.name] = Learnable(value, raw)
+            continue
         try:
             value = float(raw)
         except (TypeError, ValueError):

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from importlib import metadata
 from typing import Any
@@ -137,7 +137,10 @@ class Renderer:
     distribution : str or Distribution
         e.g. ``"logistic"`` or ``gendr.distribution("gamma", shape=0.5, reversed=True)``.
     tconorm : str or TConorm
-        e.g. ``"probabilistic"`` or ``gendr.tconorm("yager", p=2)``.
+        e.g. ``"probabilistic"`` or ``gendr.tconorm("yager", p=2)``. A parameter given as a scalar
+        tensor that requires grad (``gendr.tconorm("yager", p=torch.tensor(2.0, requires_grad=True))``)
+        is learnable: renders return ∂/∂p (both backends), and its current value is re-checked at
+        every render (ParameterError naming it when an optimizer step left the domain).
     tau : float > 0 or 0-d tensor
         scale of the distribution, in screen units (1 unit = H/2 pixels; for ``squared``
         distributions in squared units). A tensor that requires grad gets a gradient.
@@ -259,7 +262,10 @@ class Renderer:
             if bad is not None:
                 raise InputValueError(f"{name} must be finite; {name}{list(bad[0])} = {bad[1]}")
             colors, per_face = c, name == "face_colors"
-        return be.render(self.settings, verts, faces_a, camera, colors, per_face)
+        settings = self.settings
+        if settings.tconorm.learnable:  # re-read (and re-check) a learnable p: an optimizer moves it
+            settings = replace(settings, tconorm=settings.tconorm.refreshed())
+        return be.render(settings, verts, faces_a, camera, colors, per_face)
 
     def to_numpy(self, image):
         """The backend's image as a NumPy array (detached)."""

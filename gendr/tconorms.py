@@ -45,7 +45,8 @@ import math
 from dataclasses import dataclass
 from typing import Callable
 
-from .params import Param, Registry, validate_params, POSITIVE, NONNEGATIVE, NEGATIVE, POSITIVE_NOT_ONE
+from .params import (Param, Registry, validate_params, POSITIVE, NONNEGATIVE, NEGATIVE, POSITIVE_NOT_ONE,
+                     Learnable, array_of as _a, array_value)
 from .errors import ParameterError
 
 ARCHIMEDEAN, MAX, HARD_OR, MEAN = "archimedean", "max", "or", "mean"
@@ -109,6 +110,41 @@ class TConorm:
         """True when the n-ary aggregate is :meth:`from_sum` of a per-pixel sum of
         :meth:`pair_term` values (archimedean T-conorms and the mean)."""
         return self.kind in SUM_KINDS
+
+    # --- learnable parameters (see "Learnable p" in docs/tconorms.md) ---
+    @property
+    def learnable(self) -> dict:
+        """``{name: array}`` of the parameters given as torch tensors / Dr.Jit arrays (empty: none).
+
+        Their gradients are computed by both backends (∂A/∂p through the generator, its inverse
+        and the per-pixel sum; DESIGN.md §4)."""
+        return {k: v.array for k, v in self.params if isinstance(v, Learnable)}
+
+    def with_arrays(self, arrays) -> "TConorm":
+        """The same setting with the learnable parameters' arrays replaced by ``arrays``
+        (``{name: array}``, e.g. cast to the render dtype, or detached), values unchanged."""
+        if not arrays:
+            return self
+        return TConorm(self.family, tuple((k, Learnable(float(v), arrays[k]) if k in arrays else v)
+                                          for k, v in self.params))
+
+    def refreshed(self) -> "TConorm":
+        """Re-read the learnable parameters' current values (an optimizer may have changed them in
+        place) and check their domain: :class:`~gendr.errors.ParameterError` naming the value if
+        one left it. Returns ``self`` when there is nothing learnable."""
+        if not self.learnable:
+            return self
+        out = []
+        for prm, (k, v) in zip(self.family.params, self.params):
+            if isinstance(v, Learnable):
+                owner = f"tconorm {self.name!r}"
+                value = array_value(owner, k, v.array)
+                if not prm.constraint.check(value):
+                    raise ParameterError(f"{owner} parameter {k}={value!r} (a learnable {type(v.array).__name__}, "
+                                         f"at render time) is out of domain: expected {prm.constraint.description}")
+                v = Learnable(value, v.array)
+            out.append((k, v))
+        return TConorm(self.family, tuple(out))
 
     def label(self) -> str:
         if not self.params:
@@ -215,6 +251,11 @@ def tconorm(name, **params) -> TConorm:
     ``gendr.tconorm("average")`` builds the one aggregation that is not a T-conorm (the mean over
     the faces; ``.is_tconorm`` is False): it renders like the others but is not in the paper's grid.
 
+    A parameter may be a scalar torch tensor (or Dr.Jit array) that requires grad: it is then
+    *learnable* (``.learnable``), both backends return ∂/∂p, and its value is re-checked at every
+    render (an optimizer step may leave the domain: :class:`~gendr.errors.ParameterError`). Keep it
+    in the domain by parametrizing, e.g. ``p = softplus(raw)`` for p > 0.
+
     ``name`` may also be a :class:`TConorm` (returned unchanged). Raises
     :class:`~gendr.errors.UnknownNameError` / :class:`~gendr.errors.ParameterError`.
     """
@@ -223,7 +264,7 @@ def tconorm(name, **params) -> TConorm:
             raise ParameterError("parameters cannot be combined with an existing TConorm object")
         return name
     fam = TCONORMS.lookup(name)
-    values = validate_params(f"tconorm {name!r}", fam.params, params)
+    values = validate_params(f"tconorm {name!r}", fam.params, params, learnable=True)
     return TConorm(fam, tuple((p.name, values[p.name]) for p in fam.params))
 
 
@@ -234,12 +275,27 @@ def tconorm(name, **params) -> TConorm:
 _LOG_HALF = math.log(0.5)
 
 
+def _log(ops, p):
+    """log of a parameter (a float, or a :class:`Learnable`: then differentiable)."""
+    return ops.log(p.array) if isinstance(p, Learnable) else math.log(p)
+
+
+def _recip(p):
+    """1/p keeping learnability."""
+    return Learnable(1.0 / float(p), 1.0 / p.array) if isinstance(p, Learnable) else 1.0 / p
+
+
 def _pow0(ops, x, e):
     """x**e for x >= 0 and a Python float e > 0; 0 at x = 0 with a finite gradient there.
 
     e >= 1: the true derivative at 0 (e·0^(e−1): 1 for e = 1, else 0). e < 1: the true derivative at
-    0 is +inf; this reports 0 (double where, so no inf/NaN reaches autograd).
+    0 is +inf; this reports 0 (double where, so no inf/NaN reaches autograd). A :class:`Learnable`
+    e: x^e with its e-derivative x^e·log x (0 at x = 0: both sides fed safe values), same x-derivatives.
     """
+    if isinstance(e, Learnable):
+        pos = x > 0.0
+        y = ops.where(pos, ops.where(pos, x, 1.0) ** e.array, 0.0)
+        return y + ops.where(pos, 0.0, x) if e == 1.0 else y  # (x = 0 there: slope 1 for e = 1)
     if e == 1.0:
         return x
     if e > 1.0:
@@ -361,7 +417,7 @@ def _hamacher_binary(ops, a, b, p):
     # nonnegative terms (no cancellation near 0 or near 1, and numerator <= denominator in floats):
     #   a + b + (p − 2)ab = b(1 − a) + a(1 − b) + p·ab,   1 + (p − 1)ab = (1 − a) + a(1 − b) + p·ab
     def s(a, b):
-        pab = p * a * b
+        pab = _a(p) * a * b
         return (b * (1.0 - a) + a * (1.0 - b) + pab) / ((1.0 - a) + a * (1.0 - b) + pab)
     if p == 0.0:  # 0/0 at a = b = 1, where the limit (and the boundary law) is 1
         ok = a * b < 1.0
@@ -373,10 +429,10 @@ def _hamacher_generator(ops, x, l, p):
     # g = log((p + (1 − p)(1 − x))/(1 − x)) = log1p(p·x/(1 − x))   (p > 0);   x/(1 − x)   (p = 0)
     if p == 0.0:
         return _inf_guard(ops, lambda x, l: x * ops.exp(-l), (x, l), (0.5, _LOG_HALF))
-    log_p = math.log(p)
+    log_p = _log(ops, p)
     return _split_half(
         ops, x, l,
-        lambda x, l: ops.log1p(p * x * ops.exp(-l)),            # x < 1/2: exp(−l) <= 2
+        lambda x, l: ops.log1p(_a(p) * x * ops.exp(-l)),            # x < 1/2: exp(−l) <= 2
         lambda x, l: ops.softplus(log_p + ops.log(x) - l))      # x >= 1/2: log-space, no overflow
 
 
@@ -385,7 +441,7 @@ def _hamacher_inverse(ops, s, p):
         return _split_at(ops, s, 1.0, lambda s: s / (1.0 + s), lambda s: 1.0 - 1.0 / (1.0 + s))
     # x = expm1(s)/(expm1(s) + p) = w/(w + p·u), w = 1 − e^−s, u = e^−s: denominator >= min(1, p)
     w, u = -ops.expm1(-s), ops.exp(-s)
-    return w / (w + p * u)
+    return w / (w + _a(p) * u)
 
 
 TCONORMS.add(TConormFamily(
@@ -403,7 +459,7 @@ TCONORMS.add(TConormFamily(
 
 # --- frank (p > 0, p != 1) ----------------------------------------------------------------------
 def _frank_binary(ops, a, b, p):
-    q, k = math.log(p), p - 1.0
+    q, k = _log(ops, p), _a(p) - 1.0
     return 1.0 - ops.log1p(ops.expm1(q * (1.0 - a)) * ops.expm1(q * (1.0 - b)) / k) / q
 
 
@@ -415,14 +471,16 @@ def _frank_generator(ops, x, l, p):
     #           (= the same quantity; the product form cannot overflow for tiny p)
     # Above it, with y = 1 − x = exp(l) and z = q·y (accurate as x → 1; +inf with finite gradient
     # at l = −inf):  g = −l − log(q/k) − log(expm1(z)/z)
-    q, k = math.log(p), p - 1.0
-    c = math.log(q / k)
+    # (the split x_s is a constant of p's float value: both sides are the same function of p)
+    qf = math.log(p)
+    q, k = _log(ops, p), _a(p) - 1.0
+    c = ops.log(q / k) if isinstance(p, Learnable) else math.log(q / k)
     if p > 1.0:
-        at = min(0.5, 1.0 / q)
-        lower = lambda x, l: -ops.log1p((p / k) * ops.expm1(-q * x))  # noqa: E731
+        at = min(0.5, 1.0 / qf)
+        lower = lambda x, l: -ops.log1p((_a(p) / k) * ops.expm1(-q * x))  # noqa: E731
     else:
-        at = max(0.5, 1.0 + 1.0 / q)
-        lower = lambda x, l: -ops.log1p(ops.exp(q * (1.0 - x)) * ops.expm1(q * x) / (1.0 - p))  # noqa: E731
+        at = max(0.5, 1.0 + 1.0 / qf)
+        lower = lambda x, l: -ops.log1p(ops.exp(q * (1.0 - x)) * ops.expm1(q * x) / (1.0 - _a(p)))  # noqa: E731
     return _split_half(ops, x, l, lower, lambda x, l: -l - c - _log_expm1_ratio(ops, q * ops.exp(l)), at)
 
 
@@ -432,7 +490,7 @@ def _frank_inverse(ops, s, p):
     #   large s:  x = 1 − log1p((p − 1)·u) / log p     exactly 1 at s = inf, x <= 1
     # The switch keeps each log1p argument away from −1 (>= −1/2), also for extreme p; each form
     # only sees its own side of the switch (for extreme p the other side would reach log1p(−1)).
-    q = math.log(p)
+    q = _log(ops, p)
     s_half = math.log1p(math.sqrt(p))  # g(1/2) = log(√p + 1)
     if p > 2.0:    # small form's argument −(1 − 1/p)·w must stay >= −1/2
         s_switch = min(s_half, -math.log1p(-0.5 * p / (p - 1.0)))
@@ -441,8 +499,8 @@ def _frank_inverse(ops, s, p):
     else:
         s_switch = s_half
     return _split_at(ops, s, s_switch,
-                     lambda s: -ops.log1p((1.0 / p - 1.0) * -ops.expm1(-s)) / q,
-                     lambda s: 1.0 - ops.log1p((p - 1.0) * ops.exp(-s)) / q)
+                     lambda s: -ops.log1p((1.0 / _a(p) - 1.0) * -ops.expm1(-s)) / q,
+                     lambda s: 1.0 - ops.log1p((_a(p) - 1.0) * ops.exp(-s)) / q)
 
 
 TCONORMS.add(TConormFamily(
@@ -460,10 +518,10 @@ TCONORMS.add(TConormFamily(
 # --- yager (p > 0), nilpotent -------------------------------------------------------------------
 TCONORMS.add(TConormFamily(
     "yager", ARCHIMEDEAN,
-    binary=lambda ops, a, b, p: ops.clamp(_pow0(ops, _pow0(ops, a, p) + _pow0(ops, b, p), 1.0 / p), None, 1.0),
+    binary=lambda ops, a, b, p: ops.clamp(_pow0(ops, _pow0(ops, a, p) + _pow0(ops, b, p), _recip(p)), None, 1.0),
     params=(Param(_P, POSITIVE, doc="p = 1: bounded sum min(1, a + b); p → ∞: max"),),
     generator=lambda ops, x, log1m_x, p: _pow0(ops, x, p),
-    generator_inverse=lambda ops, s, p: _pow0(ops, s, 1.0 / p),
+    generator_inverse=lambda ops, s, p: _pow0(ops, s, _recip(p)),
     generator_at_one=lambda p: 1.0,
     doc="S(a, b) = min(1, (a^p + b^p)^(1/p)), p > 0; generator x^p, nilpotent (g(1) = 1: the aggregate "
         "reaches 1 exactly once Σ p_t^p >= 1); inverse s^(1/p).",
@@ -473,7 +531,7 @@ TCONORMS.add(TConormFamily(
 # --- aczel_alsina (p > 0) -----------------------------------------------------------------------
 def _aczel_binary(ops, a, b, p):
     t = _pow0(ops, -ops.log1p(-a), p) + _pow0(ops, -ops.log1p(-b), p)
-    return -ops.expm1(-_pow0(ops, t, 1.0 / p))
+    return -ops.expm1(-_pow0(ops, t, _recip(p)))
 
 
 TCONORMS.add(TConormFamily(
@@ -482,7 +540,7 @@ TCONORMS.add(TConormFamily(
     params=(Param(_P, POSITIVE, doc="p = 1: probabilistic; p → ∞: max"),),
     generator=lambda ops, x, log1m_x, p: _inf_guard(ops, lambda l: _pow0(ops, -l, p), (log1m_x,), (_LOG_HALF,)),
     generator_inverse=lambda ops, s, p: -ops.expm1(
-        -_inf_guard(ops, lambda s: _pow0(ops, s, 1.0 / p), (s,), (1.0,))),
+        -_inf_guard(ops, lambda s: _pow0(ops, s, _recip(p)), (s,), (1.0,))),
     generator_at_one=_strict,
     doc="S(a, b) = 1 − exp(−((−log(1 − a))^p + (−log(1 − b))^p)^(1/p)), p > 0; generator (−log(1 − x))^p; "
         "inverse 1 − exp(−s^(1/p)).",
@@ -491,7 +549,7 @@ TCONORMS.add(TConormFamily(
 
 # --- dombi (p > 0) -------------------------------------------------------------------------------
 def _dombi_binary(ops, a, b, p):
-    r = _pow0(ops, _pow0(ops, a / (1.0 - a), p) + _pow0(ops, b / (1.0 - b), p), 1.0 / p)
+    r = _pow0(ops, _pow0(ops, a / (1.0 - a), p) + _pow0(ops, b / (1.0 - b), p), _recip(p))
     return 1.0 - 1.0 / (1.0 + r)
 
 
@@ -499,16 +557,16 @@ def _dombi_generator(ops, x, l, p):
     # g = (x/(1 − x))^p: x^p·(1 − x)^−p below 1/2, exp(p(log x − log(1 − x))) above (guarded overflow)
     return _split_half(
         ops, x, l,
-        lambda x, l: _pow0(ops, x, p) * ops.exp(-p * l),
-        lambda x, l: _inf_guard(ops, lambda x, l: ops.exp(p * (ops.log(x) - l)), (x, l), (0.5, _LOG_HALF)))
+        lambda x, l: _pow0(ops, x, p) * ops.exp(-_a(p) * l),
+        lambda x, l: _inf_guard(ops, lambda x, l: ops.exp(_a(p) * (ops.log(x) - l)), (x, l), (0.5, _LOG_HALF)))
 
 
 def _dombi_inverse(ops, s, p):
     # x = r/(1 + r), r = s^(1/p); for s >= 1 as sigmoid(log(s)/p) (s = inf → 1, no inf/inf)
     def lower(s):
-        r = _pow0(ops, s, 1.0 / p)
+        r = _pow0(ops, s, _recip(p))
         return r / (1.0 + r)
-    return _split_at(ops, s, 1.0, lower, lambda s: ops.sigmoid(ops.log(s) / p))
+    return _split_at(ops, s, 1.0, lower, lambda s: ops.sigmoid(ops.log(s) / _a(p)))
 
 
 TCONORMS.add(TConormFamily(
@@ -526,16 +584,16 @@ TCONORMS.add(TConormFamily(
 # --- schweizer_sklar (p < 0) ----------------------------------------------------------------------
 def _schweizer_sklar_binary(ops, a, b, p):
     # 1 − ((1 − a)^p + (1 − b)^p − 1)^(1/p), with (1 − a)^p − 1 = expm1(p·log1p(−a)) (exact near 0)
-    t = ops.expm1(p * ops.log1p(-a)) + ops.expm1(p * ops.log1p(-b))
-    return -ops.expm1(ops.log1p(t) / p)
+    t = ops.expm1(_a(p) * ops.log1p(-a)) + ops.expm1(_a(p) * ops.log1p(-b))
+    return -ops.expm1(ops.log1p(t) / _a(p))
 
 
 TCONORMS.add(TConormFamily(
     "schweizer_sklar", ARCHIMEDEAN,
     binary=_schweizer_sklar_binary,
     params=(Param(_P, NEGATIVE, doc="p = −1: hamacher p = 0; p → 0: probabilistic; p → −∞: max"),),
-    generator=lambda ops, x, log1m_x, p: _inf_guard(ops, lambda l: ops.expm1(p * l), (log1m_x,), (_LOG_HALF,)),
-    generator_inverse=lambda ops, s, p: -ops.expm1(ops.log1p(s) / p),
+    generator=lambda ops, x, log1m_x, p: _inf_guard(ops, lambda l: ops.expm1(_a(p) * l), (log1m_x,), (_LOG_HALF,)),
+    generator_inverse=lambda ops, s, p: -ops.expm1(ops.log1p(s) / _a(p)),
     generator_at_one=_strict,
     doc="S(a, b) = 1 − ((1 − a)^p + (1 − b)^p − 1)^(1/p), p < 0; generator (1 − x)^p − 1 = "
         "expm1(p·log(1 − x)); inverse 1 − (1 + s)^(1/p).",

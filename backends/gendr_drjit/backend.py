@@ -229,6 +229,9 @@ class DrJitBackend:
             slots["colors"] = colors.data
         if _is_torch(tau):
             slots["tau"] = tau
+        for k, v in settings.tconorm.learnable.items():  # learnable T-conorm parameters (∂A/∂p)
+            if _is_torch(v):
+                slots["tcn:" + k] = v.reshape(())
         for k, (v, _) in cam.items():
             if _is_torch(v):
                 slots["cam:" + k] = v
@@ -283,8 +286,13 @@ class DrJitBackend:
             raise ShapeError(f"vertex batch size {Bv} and camera batch size {Bc} do not match")
         t = wrapped.get("tau", tau)
         tau_arr = self._opaque(self._param(t, T)[0], T)
+        learn = settings.tconorm.learnable
+        if learn:  # the T-conorm's learnable parameters as width-1 AD arrays of the render dtype
+            from dataclasses import replace
+            arrays = {k: self._opaque(self._param(wrapped.get("tcn:" + k, v), T)[0], T) for k, v in learn.items()}
+            settings = replace(settings, tconorm=settings.tconorm.with_arrays(arrays))
         H, W = settings.image_size
-        if self.frozen is not None and faces.shape[0] > 0:
+        if self.frozen is not None and faces.shape[0] > 0 and not learn:  # (frozen: p is a constant)
             out, B = self.frozen.render(settings, camera, T, ops, P, Bc, vflat, Bv, V, faces, col, per_face, tau_arr)
         else:
             out, B = raster.render(settings, camera, ops, T, P, Bc, vflat, Bv, V, faces, col, per_face, tau_arr)

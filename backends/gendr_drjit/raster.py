@@ -26,6 +26,7 @@ not recompile a kernel; the loop kernels depend only on the instance, image size
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import drjit as dr
@@ -604,7 +605,12 @@ class _Ctx:
     the op outputs) would close a reference cycle through C++ that Python's collector cannot see —
     every render leaked its graph (~4 MB per shape step) until the process ended."""
 
-    def __init__(self, s, fc, T, ops, pix, tau_grad, resid):
+    def __init__(self, s, fc, T, ops, pix, tau_grad, resid, p_grad=False):
+        # settings with the learnable T-conorm parameters detached (AlphaSum gets them as input "tp")
+        learn = s.tconorm.learnable
+        if learn:
+            s = replace(s, tconorm=s.tconorm.with_arrays({k: dr.detach(v) for k, v in learn.items()}))
+        self.p_grad = p_grad
         edges = Faces()  # the detached per-face data the loops read
         edges.K, edges.Xd, edges.Yd, edges.orient, edges.cull_lo = fc.K, fc.Xd, fc.Yd, fc.orient, fc.cull_lo
         edges.grad_xy = bool(fc.ad) and dr.grad_enabled(fc.Xall)
@@ -625,8 +631,8 @@ class AlphaSum(dr.CustomOp):
     goes into a per-lane τ accumulator summed once after the loop. Same derivatives as Dr.Jit's
     generic reverse-mode sum loop (tests/test_drjit_freeze.py)."""
 
-    def eval(self, Xall, Yall, tau, ctx):
-        self.ctx, self.tau = ctx, tau
+    def eval(self, Xall, Yall, tau, tp, ctx):
+        self.ctx, self.tau, self.tp = ctx, tau, tp
         s, fc, T, ops, pix = ctx.parts
         if ctx.resid is not None:  # S and nsat of an earlier forward pass of the same inputs
             S, ctx.nsat = ctx.resid
@@ -648,12 +654,17 @@ class AlphaSum(dr.CustomOp):
         x_eps, x_cut = dist.argument_threshold(s.eps), s.cutoff_argument(ops, tau)
         want_xy = fc.grad_xy
         want_tau = self.ctx.tau_grad
+        # learnable p (one parameter: every parametric family has just p): ∂g/∂p per pair by
+        # forward-mode AD on a fresh leaf, as for τ; the direct ∂g⁻¹/∂p is ordinary AD after the op
+        want_p = self.ctx.p_grad
+        pname = next(iter(tcn.learnable), None)
+        p_val = dr.detach(self.tp)
         delta = [Float(g) for g in self.grad_out()]
         delta = [g if dr.width(g) == pix.n else dr.zeros(Float, pix.n) + g for g in delta]
         gX = dr.zeros(Float, fc.n_corners) if want_xy else None
         gY = dr.zeros(Float, fc.n_corners) if want_xy else None
 
-        def body(w, bits, gt):
+        def body(w, bits, gt, gp):
             f, w, bits = pix.next_face(w, bits)
             edges = _edge_setup(fc, T, f, pix.px)
             acc = [[Float(0.0), Float(0.0)] for _ in range(K)]  # (x, y) per corner, over the strip
@@ -675,19 +686,25 @@ class AlphaSum(dr.CustomOp):
                 if want_tau:
                     _, xt = _local_derivative(lambda tt_: dist.argument(ops, d, tt_), Float(tau))
                     gt = gt + coef * xt
+                if want_p:
+                    _, gpp = _local_derivative(lambda pp: generator_terms(
+                        dist, tcn.with_arrays({pname: pp}), ops, x, x_eps, x_cut)[0], Float(p_val))
+                    gp = gp + dr.select(delta[r] != 0.0, delta[r] * gpp, 0.0)
             if want_xy:
                 for k in range(K):
                     for g, v in ((gX, acc[k][0]), (gY, acc[k][1])):
                         dr.scatter_reduce(dr.ReduceOp.Add, g, v, f * K + k, v != 0.0, mode=BWD_MODE)
-            return w, bits, gt
+            return w, bits, gt, gp
 
-        _, _, gt = dr.while_loop((*pix.start(), dr.zeros(Float, pix.n)), lambda w, bits, gt: bits != 0, body,
-                                 labels=("w", "bits", "gt"))
+        _, _, gt, gp = dr.while_loop((*pix.start(), dr.zeros(Float, pix.n), dr.zeros(Float, pix.n)),
+                                     lambda w, bits, gt, gp: bits != 0, body, labels=("w", "bits", "gt", "gp"))
         if want_xy:
             self.set_grad_in("Xall", gX)
             self.set_grad_in("Yall", gY)
         if want_tau:
             self.set_grad_in("tau", dr.sum(gt))
+        if want_p:
+            self.set_grad_in("tp", dr.sum(gp))
 
     def name(self):
         return "gendr alpha sum"
@@ -701,15 +718,18 @@ def alpha_archimedean(s, fc, T, ops, pix, pix1, tau, resid=None, keep_sums=False
     (frozen backward replays reuse them); ``keep_sums``: store S, nsat when the loop runs (the frozen
     forward returns them)."""
     tcn = s.tconorm
-    ad = fc.ad or dr.grad_enabled(tau)
+    learn = list(tcn.learnable.values())
+    p_ad = bool(learn) and dr.grad_enabled(learn[0])
+    ad = fc.ad or dr.grad_enabled(tau) or p_ad
     if ad and not CUSTOM_BACKWARD:
         S, nsat = alpha_sum_generic(s, fc, T, ops, pix1, tau)
         S, nsat, pix = (S,), (nsat,), pix1
     elif ad:
         Xall = fc.Xall if fc.ad else dr.zeros(T.Float, 1)
         Yall = fc.Yall if fc.ad else dr.zeros(T.Float, 1)
-        ctx = _Ctx(s, fc, T, ops, pix, dr.grad_enabled(tau), resid)  # (not a PyTree: passed through as is)
-        S = dr.custom(AlphaSum, Xall, Yall, tau, ctx)
+        ctx = _Ctx(s, fc, T, ops, pix, dr.grad_enabled(tau), resid, p_ad)  # (not a PyTree: passed through as is)
+        tp = learn[0] if learn else dr.zeros(T.Float, 1)
+        S = dr.custom(AlphaSum, Xall, Yall, tau, tp, ctx)
         nsat = ctx.nsat
     elif resid is not None:
         S, nsat = resid

@@ -481,9 +481,12 @@ class SoftAlpha(torch.autograd.Function):
     recomputes each block and applies the analytic geometric derivative (nothing per pair is stored)."""
 
     @staticmethod
-    def forward(ctx, X, Y, tau, plan):
+    def forward(ctx, X, Y, tau, plan, *tparams):
+        """``tparams``: the learnable T-conorm parameters (0-d tensors, in the order of
+        ``plan.settings.tconorm.learnable``); ∂A/∂p comes back for each."""
         s = plan.settings
-        dist, tcn, eps = s.distribution, s.tconorm, s.eps
+        dist, eps = s.distribution, s.eps
+        tcn = _bind(s.tconorm, tparams, detach=True)
         x_cut = s.cutoff_argument(ops, tau.detach())
         H, W = s.image_size
         B, K, Wc = plan.fc.B, plan.fc.K, plan.Wc
@@ -514,20 +517,26 @@ class SoftAlpha(torch.autograd.Function):
             if tcn.kind != MAX:  # the hard logical "or": covered where some face has p >= 1/2
                 A = (A >= 0.5).to(X.dtype)
         ctx.plan = plan
-        ctx.save_for_backward(X, Y, tau, acc, A)
+        ctx.save_for_backward(X, Y, tau, acc, A, *tparams)
         return A
 
     @staticmethod
     def backward(ctx, gA):
-        X, Y, tau, acc, A = ctx.saved_tensors
+        X, Y, tau, acc, A, *tparams = ctx.saved_tensors
         plan = ctx.plan
         s = plan.settings
-        dist, tcn, eps = s.distribution, s.tconorm, s.eps
+        dist, eps = s.distribution, s.eps
+        # the learnable parameters as fresh leaves: per-pair ∂g/∂p and the direct ∂g⁻¹/∂p by autograd
+        want_p = [ctx.needs_input_grad[4 + i] for i in range(len(tparams))]
+        leaves = [t.detach().requires_grad_(w) for t, w in zip(tparams, want_p)]
+        tcn = _bind(s.tconorm, leaves)
+        p_in = [t for t, w in zip(leaves, want_p) if w]
+        gp = [torch.zeros((), dtype=X.dtype, device=X.device) for _ in p_in]
         x_cut = s.cutoff_argument(ops, tau.detach())
         W = s.image_size[1]
         B, K, Wc = plan.fc.B, plan.fc.K, plan.Wc
         if not (tcn.streams or tcn.kind == MAX):  # the hard "or": piecewise constant
-            return None, None, None, None
+            return (None, None, None, None, *[None] * len(tparams))
         want_tau = ctx.needs_input_grad[2]
         geom = edge_table(X, Y)
         gP = X.new_zeros(4, X.numel())  # per (face, edge k): the parts for corner k (x, y), corner k + 1 (x, y)
@@ -542,10 +551,13 @@ class SoftAlpha(torch.autograd.Function):
                 out = formula(dist.argument(ops, d_, tau_))
                 if not out.requires_grad:  # e.g. heaviside: coverage is piecewise constant
                     return None
-                inputs = (d_, tau_) if want_tau else (d_,)
+                inputs = ((d_, tau_) if want_tau else (d_,)) + tuple(p_in)
                 grads = torch.autograd.grad(out, inputs, w, allow_unused=True)
             if want_tau and grads[1] is not None:
                 gtau = gtau + grads[1]
+            for i, g in enumerate(grads[len(inputs) - len(p_in):]):
+                if g is not None:
+                    gp[i] = gp[i] + g
             return grads[0]
 
         def scatter(blk, gd, k, t, ux, uy):
@@ -561,9 +573,13 @@ class SoftAlpha(torch.autograd.Function):
                     gP[i].index_add_(0, idx, (v * m).sum(1))
 
         if tcn.streams:
-            with torch.enable_grad():  # dL/dS = dL/dA · dA/dS, per pixel
+            with torch.enable_grad():  # dL/dS = dL/dA · dA/dS, per pixel (and the direct ∂g⁻¹/∂p)
                 S = acc[0].detach().requires_grad_(True)
-                (gS,) = torch.autograd.grad(_from_sum(tcn, S, acc[1], plan.fc.F), S, gA)
+                gS, *gdirect = torch.autograd.grad(_from_sum(tcn, S, acc[1], plan.fc.F), (S, *p_in), gA,
+                                                   allow_unused=True)
+            for i, g in enumerate(gdirect):
+                if g is not None:
+                    gp[i] = gp[i] + g
             gS = torch.nn.functional.pad(gS, (0, Wc - W)).reshape(-1)
             for blk in plan.chunks():
                 w = gS.index_select(0, blk.pix().reshape(-1)).view(-1, blk.width)
@@ -591,7 +607,27 @@ class SoftAlpha(torch.autograd.Function):
         gP = gP.view(4, *X.shape)
         gX = gP[0] + gP[2].roll(1, 1)  # edge k − 1 ends at corner k
         gY = gP[1] + gP[3].roll(1, 1)
-        return gX, gY, gtau.reshape(tau.shape), None
+        it = iter(gp)
+        gparams = [next(it).reshape(t.shape) if w else None for t, w in zip(tparams, want_p)]
+        return (gX, gY, gtau.reshape(tau.shape), None, *gparams)
+
+
+def _bind(tcn, tparams, detach=False):
+    """The T-conorm with its learnable parameters' arrays replaced by ``tparams`` (in the order of
+    ``tcn.learnable``), optionally detached; ``tcn`` itself when none is learnable."""
+    if not tparams:
+        return tcn
+    return tcn.with_arrays({k: (t.detach() if detach else t) for k, t in zip(tcn.learnable, tparams)})
+
+
+def learnable_tensors(tconorm, dtype, device):
+    """The T-conorm's learnable parameters as 0-d tensors of the render dtype/device (differentiable
+    casts, in the order of ``tconorm.learnable``)."""
+    out = []
+    for name, v in tconorm.learnable.items():
+        t = v if isinstance(v, torch.Tensor) else torch.as_tensor(float(v))
+        out.append(t.to(dtype=dtype, device=device).reshape(()))
+    return out
 
 
 def rgb_band(plan, X, Y, shade, tau, band):
@@ -667,7 +703,7 @@ def render(settings, camera, verts, faces, colors, per_face):
     radius = settings.culling_distance(settings.tau_value)
     with torch.no_grad():
         plan = Plan(settings, fc, *pixel_ranges(fc, H, W, radius))
-    alpha = SoftAlpha.apply(fc.X, fc.Y, tau, plan)
+    alpha = SoftAlpha.apply(fc.X, fc.Y, tau, plan, *learnable_tensors(settings.tconorm, verts.dtype, verts.device))
     if fc.shade is None:
         return torch.cat([alpha.new_zeros(*alpha.shape, 3), alpha[..., None]], -1)
     needs_grad = torch.is_grad_enabled() and any(t.requires_grad for t in (fc.X, fc.shade, tau))

@@ -1,0 +1,177 @@
+"""Interop with other libraries' cameras: kornia's ``PinholeCamera`` and PyTorch3D's look-at + FoV.
+
+Nothing here is imported by ``gendr`` itself; torch and kornia are imported inside the functions
+(the spec layer stays free of both). All functions are differentiable w.r.t. their tensor inputs.
+
+Conventions (docs/conventions.md, "Interop"):
+
+* gendr (OpenGL): camera frame +X right, +Y up, looking along −Z; pixel (row i, col j) has its
+  centre at image coordinates (j + ½, i + ½) (column, row; rows from the top).
+* kornia (OpenCV): camera frame +X right, +Y down, looking along +Z, i.e. (x, −y, −z) of gendr's;
+  ``K`` maps to pixel coordinates whose integer values are pixel *centres*
+  (``kornia.utils.create_meshgrid(..., normalized_coordinates=False)``), so kornia's principal
+  point is gendr's minus ½ pixel: cx_k = cx − ½, cy_k = cy − ½. Extrinsics: world → camera, 4×4.
+* PyTorch3D: camera frame +X left, +Y up, looking along +Z, i.e. (−x, y, −z) of gendr's, the same
+  image (not mirrored). NDC +X left, +Y up; the *shorter* image side spans [−1, 1].
+"""
+from __future__ import annotations
+
+import math
+
+from .cameras import Camera, IntrinsicsCamera, PerspectiveCamera
+from .errors import ParameterError, ShapeError
+
+
+def _torch():
+    import torch
+    return torch
+
+
+def _intrinsics(camera, H, W, dtype, device):
+    """(fx, fy, cx, cy) in gendr's pixel convention, [Bc] tensors."""
+    torch = _torch()
+
+    def t(v):
+        return (v.to(dtype=dtype, device=device) if isinstance(v, torch.Tensor)
+                else torch.as_tensor(v, dtype=dtype, device=device)).reshape(-1)
+    if isinstance(camera, IntrinsicsCamera):
+        return t(camera.fx), t(camera.fy), t(camera.cx), t(camera.cy)
+    if isinstance(camera, PerspectiveCamera):
+        f = (H / 2.0) / torch.tan(t(camera.fov_y) * (math.pi / 360.0))
+        return f, f, torch.full_like(f, W / 2.0), torch.full_like(f, H / 2.0)
+    raise ParameterError(f"to_kornia needs a PerspectiveCamera or an IntrinsicsCamera (a pinhole), got "
+                         f"{type(camera).__name__}")
+
+
+def world_to_view(camera: Camera, dtype=None, device=None):
+    """gendr's world → camera (OpenGL frame) transform as ``(R [Bc, 3, 3], t [Bc, 3])``:
+    x_view = R·x_world + t. Differentiable w.r.t. tensor pose parameters."""
+    torch = _torch()
+    from gendr_torch.ops import torch_ops as ops  # (lazy: the spec layer imports no backend)
+    from gendr_torch.raster import camera_tensors
+    dtype = dtype or torch.float64
+    P, _ = camera_tensors(camera, dtype, device or "cpu")
+    r, u, b, e = camera.basis(ops, P)  # each a 3-tuple of [Bc|1, 1]
+    R = torch.stack([torch.cat(list(ax), -1) for ax in (r, u, b)], -2)  # rows r, u, b: [Bc, 3, 3]
+    eye = torch.cat(list(e), -1)  # [Bc, 3]
+    return R, -(R @ eye[..., None])[..., 0]
+
+
+def project_points(camera: Camera, points, image_size):
+    """Pixel coordinates (column, row) of world points in gendr's convention (pixel centres at
+    j + ½, rows from the top), by the same spec formulas the backends project with:
+    ``points`` [B?, N, 3] float tensor → [B, N, 2] (differentiable). Points behind a perspective
+    camera project mirrored, as with any pinhole formula."""
+    torch = _torch()
+    from gendr_torch.ops import torch_ops as ops
+    from gendr_torch.raster import camera_tensors
+    H, W = _size(image_size)
+    pts = points if points.ndim == 3 else points[None]
+    P, _ = camera_tensors(camera, pts.dtype, pts.device)
+    xv, yv, zv = camera.view_coords(ops, P, *pts.unbind(-1))
+    sx, sy, ox, oy = camera.ndc_affine(ops, P, H, W)
+    if camera.orthographic:
+        nx, ny = sx * xv + ox, sy * yv + oy
+    else:
+        nx, ny = sx * xv / -zv + ox, sy * yv / -zv + oy
+    return torch.stack([(nx + 1.0) * (W / 2.0), (1.0 - ny) * (H / 2.0)], -1)
+
+
+def _size(image_size):
+    if isinstance(image_size, int) and not isinstance(image_size, bool):
+        return image_size, image_size
+    try:
+        H, W = (int(v) for v in image_size)
+    except (TypeError, ValueError):
+        raise ParameterError(f"image_size={image_size!r} must be (H, W) or an int") from None
+    if H < 1 or W < 1:
+        raise ParameterError(f"image_size={image_size!r} must be positive")
+    return H, W
+
+
+_CV = (1.0, -1.0, -1.0)  # OpenGL camera frame -> OpenCV camera frame (and back): diag(1, −1, −1)
+
+
+def to_kornia(camera: Camera, image_size, *, dtype=None, device=None):
+    """A ``kornia.geometry.camera.PinholeCamera`` that projects world points to the same pixels.
+
+    camera : a :class:`PerspectiveCamera` or :class:`IntrinsicsCamera` (batched or not; tensors may
+        require grad: the result's matrices are differentiable w.r.t. them).
+    image_size : (H, W) or int.
+    dtype : torch dtype of the matrices (default float64); device : torch device.
+
+    Returns a PinholeCamera with intrinsics/extrinsics [B, 4, 4], height/width [B] (B: the camera's
+    batch size). Its ``project`` gives pixel coordinates = gendr's (column, row) − ½.
+    """
+    torch = _torch()
+    from kornia.geometry.camera import PinholeCamera
+    H, W = _size(image_size)
+    dtype = dtype or torch.float64
+    R, t = world_to_view(camera, dtype, device)
+    fx, fy, cx, cy = _intrinsics(camera, H, W, dtype, R.device)
+    B = max(R.shape[0], fx.shape[0])
+    flip = torch.tensor(_CV, dtype=dtype, device=R.device)
+    E = torch.zeros(B, 4, 4, dtype=dtype, device=R.device)
+    E[:, :3, :3] = flip[:, None] * R
+    E[:, :3, 3] = flip * t
+    E[:, 3, 3] = 1.0
+    K = torch.zeros(B, 4, 4, dtype=dtype, device=R.device)
+    K[:, 0, 0], K[:, 1, 1] = fx.expand(B), fy.expand(B)
+    K[:, 0, 2], K[:, 1, 2] = (cx - 0.5).expand(B), (cy - 0.5).expand(B)
+    K[:, 2, 2] = K[:, 3, 3] = 1.0
+    hw = torch.ones(B, dtype=dtype, device=R.device)
+    return PinholeCamera(K, E, hw * H, hw * W)
+
+
+def from_kornia(pinhole, *, near=0.1, far=100.0) -> IntrinsicsCamera:
+    """A batched :class:`IntrinsicsCamera` ([B] intrinsics, [B, 3] eye/at/up) equivalent to a
+    ``kornia.geometry.camera.PinholeCamera`` (render it at ``image_size=(int(pinhole.height[0]),
+    int(pinhole.width[0]))``). Differentiable w.r.t. the pinhole's tensors. Needs zero skew and a
+    rotation in the extrinsics (raises :class:`ParameterError` otherwise)."""
+    torch = _torch()
+    K, E = pinhole.intrinsics, pinhole.extrinsics
+    if K.ndim != 3 or K.shape[-2:] != (4, 4) or E.shape != K.shape:
+        raise ShapeError(f"pinhole intrinsics/extrinsics must be [B, 4, 4], got {list(K.shape)}, {list(E.shape)}")
+    if bool((K[:, 0, 1].detach().abs() > 1e-12 * K[:, 0, 0].detach().abs()).any()):
+        raise ParameterError(f"from_kornia: skewed intrinsics (K[0, 1] = {K[:, 0, 1].detach().tolist()}) "
+                             f"have no gendr camera")
+    Rc, tc = E[:, :3, :3], E[:, :3, 3]
+    err = (Rc @ Rc.transpose(1, 2) - torch.eye(3, dtype=Rc.dtype, device=Rc.device)).detach().abs().max()
+    if float(err) > 1e-6:
+        raise ParameterError(f"from_kornia: the extrinsics' 3x3 block is not a rotation (|RRᵀ − I| = {float(err):.3g})")
+    eye = -(Rc.transpose(1, 2) @ tc[..., None])[..., 0]  # camera centre in the world
+    forward, down = Rc[:, 2], Rc[:, 1]  # OpenCV +Z (viewing direction) and +Y (down), world frame
+    return IntrinsicsCamera(eye=eye, at=eye + forward, up=-down, near=near, far=far,
+                            fx=K[:, 0, 0], fy=K[:, 1, 1], cx=K[:, 0, 2] + 0.5, cy=K[:, 1, 2] + 0.5)
+
+
+def from_pytorch3d_look_at(dist=1.0, elev=0.0, azim=0.0, *, fov=60.0, degrees=True, eye=None,
+                           at=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), image_size=None, znear=1.0,
+                           zfar=100.0) -> PerspectiveCamera:
+    """The gendr camera of PyTorch3D's ``FoVPerspectiveCameras(fov=fov, degrees=degrees, R=R, T=T,
+    znear, zfar)`` with ``R, T = look_at_view_transform(dist, elev, azim, degrees, eye, at, up)``
+    (PyTorch3D's defaults; ``aspect_ratio`` 1, its default) rendered at ``image_size`` (H, W).
+
+    Same image, pixel for pixel: PyTorch3D's camera frame is gendr's with x and z negated
+    (+X left, +Y up, looking along +Z), and its NDC (+X left, +Y up) is not mirrored. Its camera
+    position for (dist, elev, azim) is gendr's ``Orbit(azim, elev, dist)`` (elevation towards +Y,
+    azimuth from +Z towards +X). Its ``fov`` is the field of view of the *shorter* image side (the
+    side its NDC spans [−1, 1]); gendr's ``fov_y`` is vertical, so for H > W it becomes
+    2·atan(tan(fov/2)·H/W). ``image_size`` is needed only when H > W (None: square / H <= W).
+    ``znear``/``zfar`` become ``near``/``far``. Angles in degrees unless ``degrees=False``;
+    dist/elev/azim/fov may be numbers, [B] arrays or tensors (requiring grad).
+    """
+    from .cameras import Orbit
+    to_deg = (lambda v: v) if degrees else (lambda v: v * (180.0 / math.pi))
+    fov_d = to_deg(fov)
+    if image_size is not None:
+        H, W = _size(image_size)
+        if H > W:
+            ratio = H / W
+            if isinstance(fov_d, (int, float)):
+                fov_d = 2.0 * math.degrees(math.atan(math.tan(math.radians(fov_d) / 2.0) * ratio))
+            else:
+                torch = _torch()
+                fov_d = 2.0 * torch.rad2deg(torch.atan(torch.tan(torch.deg2rad(torch.as_tensor(fov_d)) / 2.0) * ratio))
+    pos = eye if eye is not None else Orbit(to_deg(azim), to_deg(elev), dist)
+    return PerspectiveCamera(eye=pos, at=at, up=up, near=znear, far=zfar, fov_y=fov_d)
