@@ -112,3 +112,23 @@ def test_committed_rows_have_not_drifted():
     assert len(report) == 4
     bad = [v for v in report if not v["ok"]]
     assert not bad, json.dumps(bad, indent=1)
+
+
+def test_a_pair_leaving_the_cameras_domain_does_not_stop_its_batch():
+    """A learned view angle below 0 (or a distance below 0) would be a degenerate camera; that pair is
+    frozen at its last valid pose and fails, the others go on."""
+    prob = LookAtPoseProblem(pose_config(parametrization="lookat", pairs=3, image_size=16, steps=4, backend="torch"))
+    prob.step(0)
+    with torch.no_grad():
+        prob.pose[1, 3] = -2.0   # as if Adam had pushed pair 1's view angle through 0
+    good = prob.pose[1].detach().clone()
+    prob.after_update()
+    assert prob.diverged.tolist() == [False, True, False]
+    assert prob.pose[1, 3] > 0
+    before = prob.pose[1].detach().clone()
+    for i in range(1, 4):
+        assert np.isfinite(prob.step(i))
+    assert torch.equal(prob.pose[1].detach(), before)   # frozen
+    res = prob.result()
+    assert res["diverged"] == 1 and res["successes"] <= 2
+    del good
