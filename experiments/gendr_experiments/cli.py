@@ -348,7 +348,8 @@ def cmd_cost(a) -> int:
     if bad:
         print(f"{PROG}: error: unknown studies {bad}; known: {', '.join(STUDIES)}", file=sys.stderr)
         return 2
-    report = cost_report(rows, studies=studies, hours=a.hours, efficiency=a.efficiency)
+    held = [r for f in (a.holdout or []) for r in load_rows(f)]
+    report = cost_report(rows, studies=studies, hours=a.hours, efficiency=a.efficiency, holdout=held)
     print(format_report(report))
     if a.json:
         Path(a.json).write_text(json.dumps(report, indent=1))
@@ -530,6 +531,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="shape-paper (1,242 instances x 5 elevations x 3 lr x 7 tau + 21 fine tau), shape-reduced "
                         "(experiments/paper_grid.sh shape), pose-paper (1,242 x 3 bins x 200 pairs x 2 lr), "
                         "pose-reduced (paper_grid.sh pose)")
+    p.add_argument("--holdout", nargs="+", default=None, metavar="FILE",
+                   help="rows NOT to fit: printed as measured vs predicted (experiments/cost_timing.py --holdout)")
     p.add_argument("--hours", type=float, default=24.0, help="wall-clock time the cluster size is given for")
     p.add_argument("--efficiency", type=float, default=0.9, help="fraction of the cores kept busy")
     p.add_argument("--data", default=None, metavar="DIR", help="directory of the paper's files (paper:FILE)")

@@ -41,10 +41,14 @@ PAPER_FINE_STEPS = tuple(round(0.1 * k, 1) for k in range(-10, 11))
 
 
 #: per-pair cost factors of the distribution and T-conorm families relative to their geometric mean,
-#: fitted to experiments/results/cost_timing.jsonl (``gendr experiment cost``); used by ``tune``
-#: to weigh candidates before it has timed them (families missing here count 1)
-DEFAULT_K_DIST: dict = {}
-DEFAULT_K_TCONORM: dict = {}
+#: fitted (Dr.Jit backend, one thread) to experiments/results/cost_timing.jsonl by ``gendr experiment
+#: cost`` — one or two short runs each on a shared machine, so about ±30 %; ``tune`` weighs
+#: candidates with them before it has timed them (families missing here count 1)
+DEFAULT_K_DIST = {"gumbel_min": 0.46, "laplace": 0.55, "reciprocal": 0.58, "logistic": 0.65, "exponential": 0.82,
+                  "cauchy": 0.84, "hyperbolic_secant": 0.85, "uniform": 0.92, "cubic_hermite": 0.98, "gamma": 1.52,
+                  "gumbel_max": 1.61, "wigner_semicircle": 1.79, "levy": 1.95, "gaussian": 2.32}
+DEFAULT_K_TCONORM = {"yager": 0.67, "aczel_alsina": 0.73, "probabilistic": 0.78, "hamacher": 0.91, "einstein": 0.97,
+                     "max": 1.19, "schweizer_sklar": 1.23, "dombi": 1.32, "frank": 1.53}
 
 
 # ------------------------------------------------------------------------------------------------
@@ -183,6 +187,8 @@ class CostModel:
     timer: str = "cpu_seconds"
     #: median |log(predicted / measured)| over the rows fitted (exp of it: typical factor off)
     median_abs_log_error: float = float("nan")
+    #: where k_dist / k_tconorm come from when they were not fitted to these rows
+    k_from: str | None = None
 
     def seconds(self, features: dict) -> float:
         k = self.k_dist.get(features["dist_family"], 1.0) * self.k_tconorm.get(features["tconorm_family"], 1.0)
@@ -201,10 +207,11 @@ def _timer(row):
     return "seconds", float(row["seconds"])
 
 
-def fit_cost_model(rows, *, prior_weight: float = 0.3) -> CostModel:
+def fit_cost_model(rows, *, prior_weight: float = 0.3, k_from: CostModel | None = None) -> CostModel:
     """Fit :class:`CostModel` to finished rows of ONE (experiment, protocol) in log space (the
     relative error of every run counts the same). ``prior_weight`` pulls log k toward 0 (families
-    with few rows stay near the others)."""
+    with few rows stay near the others). ``k_from``: take the per-pair factors of this model (the
+    same renderer backend's; they are the renderer's, not the experiment's) and fit only c0..c2."""
     from scipy.optimize import least_squares
     rows = [r for r in rows if r.get("status") == "ok" and r.get("seconds")]
     if not rows:
@@ -222,10 +229,14 @@ def fit_cost_model(rows, *, prior_weight: float = 0.3) -> CostModel:
     tfam = sorted({f["tconorm_family"] for f in feats})
     di = np.array([dfam.index(f["dist_family"]) for f in feats])
     ti = np.array([tfam.index(f["tconorm_family"]) for f in feats])
-    nd, nt = len(dfam), len(tfam)
+    nd, nt = (0, 0) if k_from else (len(dfam), len(tfam))
+    fixed_d = np.array([k_from.k_dist.get(f, 1.0) for f in dfam]) if k_from else None
+    fixed_t = np.array([k_from.k_tconorm.get(f, 1.0) for f in tfam]) if k_from else None
 
     def unpack(x):
         c = np.exp(x[:3])
+        if k_from:
+            return c, fixed_d, fixed_t
         kd = np.exp(x[3:3 + nd] - x[3:3 + nd].mean())
         kt = np.exp(x[3 + nd:] - x[3 + nd:].mean())
         return c, kd, kt
@@ -241,9 +252,13 @@ def fit_cost_model(rows, *, prior_weight: float = 0.3) -> CostModel:
     sol = least_squares(residuals, x0, method="trf")
     c, kd, kt = unpack(sol.x)
     err = np.abs(residuals(sol.x)[:len(y)])
-    return CostModel(exp, proto, float(c[0]), float(c[1]), float(c[2]),
-                     {f: float(k) for f, k in zip(dfam, kd)}, {f: float(k) for f, k in zip(tfam, kt)},
-                     len(rows), "/".join(sorted({n for n, _ in timers})), float(np.median(err)))
+    if k_from:
+        kd_all, kt_all = dict(k_from.k_dist), dict(k_from.k_tconorm)
+    else:
+        kd_all, kt_all = {f: float(k) for f, k in zip(dfam, kd)}, {f: float(k) for f, k in zip(tfam, kt)}
+    return CostModel(exp, proto, float(c[0]), float(c[1]), float(c[2]), kd_all, kt_all,
+                     len(rows), "/".join(sorted({n for n, _ in timers})), float(np.median(err)),
+                     f"{k_from.experiment}/{k_from.protocol}" if k_from else None)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -266,6 +281,8 @@ def protocol_runs(name: str, *, best_tau=None, instances=None):
     ``instances``: grid indices (default: the study's)."""
     from .common import grid_instance
     from .sweep import fine_grid, full_config
+    if name not in STUDIES:
+        raise ParameterError(f"unknown study {name!r}; known: {', '.join(STUDIES)}")
     best_tau = best_tau or {}
     if name.startswith("shape"):
         full = name == "shape-paper"
@@ -281,7 +298,7 @@ def protocol_runs(name: str, *, best_tau=None, instances=None):
                     yield dict(base, tau=t), n_lr
                 for t in fine_grid(t_best, fine):
                     yield dict(base, tau=t), 1
-    elif name.startswith("pose"):
+    else:
         full = name == "pose-paper"
         if instances is None:
             five = ("max", "probabilistic", "einstein", "yager(p=2)", "dombi(p=0.5)")
@@ -292,8 +309,6 @@ def protocol_runs(name: str, *, best_tau=None, instances=None):
         for inst in insts:
             cfg = full_config("pose", {"protocol": "paper", "instance": int(inst), "pairs": 200 if full else 17})
             yield cfg, 3 * (2 if full else 1)  # the bins scale one draw: the same footprint
-    else:
-        raise ParameterError(f"unknown study {name!r}; known: shape-paper, shape-reduced, pose-paper, pose-reduced")
 
 
 def protocol_cost(model: CostModel, name: str, **kw) -> dict:
@@ -323,27 +338,30 @@ def best_coarse_tau(rows) -> dict:
     return {int(i): b["tau"] for i, b in summarize_best(rows, "shape").items() if i is not None}
 
 
-def cost_report(rows, *, studies=STUDIES, hours: float = 24.0, efficiency: float = 0.9) -> dict:
+def cost_report(rows, *, studies=STUDIES, hours: float = 24.0, efficiency: float = 0.9, holdout=()) -> dict:
     """Fit one :class:`CostModel` per (experiment, protocol) of ``rows`` and predict ``studies``
     (:func:`protocol_runs`) with the ``paper`` models. Returns a dict: ``models`` (each with its fit
     quality and, where wall-only rows of the same protocol exist, ``wall_over_model``: their median
     measured wall seconds / predicted CPU seconds), ``table`` (shape-paper seconds per run by
     distribution, variant and τ), ``studies`` (runs, CPU-hours with the fine stage centred on the
     measured best τ or 0.01, and on 0.1 / 0.001 for every instance, cores for a run of ``hours``
-    at ``efficiency``)."""
+    at ``efficiency``), ``holdout`` (rows not fitted, each measured against its model's prediction)."""
     from .figures import grid_labels
     from .sweep import full_config
     rows = [r for r in rows if r.get("status") == "ok" and r.get("seconds") and r.get("config")]
     groups = {}
     for r in rows:
         groups.setdefault((r["experiment"], r.get("protocol") or "quick"), []).append(r)
-    models, out_models = {}, []
-    for (exp, proto), grp in sorted(groups.items()):
+    models, out_models, by_backend = {}, [], {}
+    for (exp, proto), grp in sorted(groups.items(), key=lambda kv: -len(kv[1])):  # most rows first
         cpu = [r for r in grp if r.get("cpu_seconds") is not None]
         use = cpu if cpu else grp
         if len(use) < 3:
             continue
-        m = fit_cost_model(use)
+        backend = use[0]["config"].get("backend")
+        donor = by_backend.get(backend)  # per-pair factors of the backend, from its largest group
+        m = fit_cost_model(use, k_from=donor)
+        by_backend.setdefault(backend, m)
         models[(exp, proto)] = m
         info = m.to_dict()
         wall_only = [r for r in grp if r.get("cpu_seconds") is None]
@@ -352,7 +370,16 @@ def cost_report(rows, *, studies=STUDIES, hours: float = 24.0, efficiency: float
             info["wall_over_model"] = {"rows": len(wall_only), "median": float(np.median(ratio)),
                                        "p10": float(np.percentile(ratio, 10)), "p90": float(np.percentile(ratio, 90))}
         out_models.append(info)
-    report = {"models": out_models, "table": None, "studies": []}
+    report = {"models": out_models, "table": None, "studies": [], "holdout": []}
+    for r in holdout:
+        m = models.get((r["experiment"], r.get("protocol") or "quick"))
+        if m is None or r.get("status") != "ok":
+            continue
+        name, t = _timer(r)
+        p = m.predict(r["config"])
+        report["holdout"].append({"label": r.get("label"), "experiment": r["experiment"], "tau": r.get("tau", r.get("tau_start")),
+                                  "steps": r["config"]["steps"], "timer": name, "measured": t, "predicted": p,
+                                  "ratio": t / p})
     shape = models.get(("shape", "paper"))
     if shape is not None:
         dl, tl = grid_labels()
@@ -387,9 +414,13 @@ def format_report(report) -> str:
         lines.append(f"{m['experiment']}/{m['protocol']}: {m['n_rows']} rows ({m['timer']}), seconds = "
                      f"{m['c0']:.3g} + {m['c1']:.3g}·view_steps + {m['c2']:.3g}·k·gpairs; typical error ×"
                      f"{math.exp(m['median_abs_log_error']):.2f}")
-        lines.append("  k_dist: " + ", ".join(f"{k} {v:.2f}" for k, v in sorted(m["k_dist"].items(), key=lambda kv: kv[1])))
-        lines.append("  k_tconorm: " + ", ".join(f"{k} {v:.2f}" for k, v in sorted(m["k_tconorm"].items(),
-                                                                                  key=lambda kv: kv[1])))
+        if m.get("k_from"):
+            lines.append(f"  k_dist, k_tconorm: those of {m['k_from']} (same backend)")
+        else:
+            lines.append("  k_dist: " + ", ".join(f"{k} {v:.2f}" for k, v in sorted(m["k_dist"].items(),
+                                                                                 key=lambda kv: kv[1])))
+            lines.append("  k_tconorm: " + ", ".join(f"{k} {v:.2f}" for k, v in sorted(m["k_tconorm"].items(),
+                                                                                      key=lambda kv: kv[1])))
         if "wall_over_model" in m:
             w = m["wall_over_model"]
             lines.append(f"  {w['rows']} rows with wall seconds only: measured / model = {w['median']:.2f} (median; "
@@ -401,6 +432,12 @@ def format_report(report) -> str:
         lines.append(f"  {'distribution':22s}" + "".join(f"{x:>8.0e}" for x in t["taus"]))
         for label, secs in t["seconds"].items():
             lines.append(f"  {label:22s}" + "".join(f"{s:8.1f}" for s in secs))
+    if report.get("holdout"):
+        lines.append("")
+        lines.append("held-out rows (not fitted): measured vs predicted")
+        for h in report["holdout"]:
+            lines.append(f"  {h['experiment']:5s} {str(h['label']):32s} tau={h['tau']:<8g} steps={h['steps']:<5d} "
+                         f"{h['timer']} {h['measured']:8.1f}  model {h['predicted']:8.1f}  ratio {h['ratio']:.2f}")
     lines.append("")
     for s in report["studies"]:
         if "error" in s:
