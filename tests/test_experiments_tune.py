@@ -132,3 +132,11 @@ def test_cli_tune_prints_the_ranking(tmp_path, capsys):
     assert 1 <= len(best["best"]) <= 3 and len(load_rows(out)) >= 2
     assert gendr_main(["experiment", "tune", "--target", "tetrahedron", "--budget", "0", "-o", str(out)]) == 2
     assert "budget=0" in capsys.readouterr().err
+
+
+def test_tune_takes_candidates_outside_the_grid(tmp_path):
+    avg = {"distribution": {"name": "logistic"}, "tconorm": "average"}
+    res = tune("tetrahedron", budget=8, store=tmp_path / "t.jsonl", base=dict(TINY, steps=2), workers=0,
+               taus=(0.1,), fine_steps=(0.25,), instances=[271, avg])
+    got = {b["label"]: b["instance"] for b in res.ranking}
+    assert got == {"logistic|probabilistic": 271, "logistic|average": None}

@@ -382,7 +382,8 @@ def cmd_tune(a) -> int:
           f"{res.store}", file=sys.stderr)
     print(f"{'rank':>4s} {'instance':>8s}  {'label':40s} {'tau':>9s} {'lr':>8s} {'score':>8s} {'runs':>4s}  refined")
     for k, b in enumerate(res.best, 1):
-        print(f"{k:4d} {b['instance']:8d}  {b['label']:40s} {b['tau']:9.3g} {b['lr']:8.3g} {b['score']:8.4f} "
+        inst = "-" if b["instance"] is None else str(b["instance"])
+        print(f"{k:4d} {inst:>8s}  {b['label']:40s} {b['tau']:9.3g} {b['lr']:8.3g} {b['score']:8.4f} "
               f"{b['n']:4d}  {'yes' if b['refined'] else 'no'}")
     if a.json:
         Path(a.json).write_text(json.dumps({"best": res.best, "ranking": res.ranking, "plan": p, "runs": res.runs,

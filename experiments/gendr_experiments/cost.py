@@ -161,6 +161,11 @@ def run_features(cfg: dict) -> dict:
             "tconorm_family": tcn.name}
 
 
+def _families(spec):
+    from .common import instance_from_config
+    return instance_from_config(spec)
+
+
 def _views(cfg):
     from .targets import is_images_target, load_image_target
     if is_images_target(cfg.get("target")):
@@ -271,29 +276,35 @@ def protocol_runs(name: str, *, best_tau=None, instances=None):
 
     * ``shape-paper``: the paper's search, every instance: 5 elevations × 3 lr × 7 τ, then at the best
       lr 21 τ at 0.1-decade steps around the best τ (20 new; the best is a coarse run), per elevation;
-    * ``shape-reduced``: ``experiments/paper_grid.sh shape``: elevation 30, lr 10^-1.5, τ 0.1, 0.01,
-      0.001, then best·10^±0.5;
+    * ``shape-reduced``: ``experiments/paper_grid.sh shape``: the 1,242 and "average" with each of the
+      46 distribution settings, elevation 30, lr 10^-1.5, τ 0.1, 0.01, 0.001, then best·10^±0.5;
     * ``pose-paper``: every instance, 3 bins × 200 pairs (one run per bin) × lr {0.1, 0.3}, 1,000 steps;
     * ``pose-reduced``: ``experiments/paper_grid.sh pose``: 23 plain distributions × 5 T-conorms,
       3 bins × 17 pairs, lr 0.3.
 
-    ``best_tau``: instance -> the best coarse τ the fine stage centres on (default 0.01 for all);
-    ``instances``: grid indices (default: the study's)."""
+    ``best_tau``: instance (grid index, else label) -> the best coarse τ the fine stage centres on
+    (default 0.01); ``instances``: grid indices or config dicts outside the grid (default: the study's)."""
     from .common import grid_instance
     from .sweep import fine_grid, full_config
     if name not in STUDIES:
         raise ParameterError(f"unknown study {name!r}; known: {', '.join(STUDIES)}")
-    best_tau = best_tau or {}
+    best_tau = {} if best_tau is None else best_tau
     if name.startswith("shape"):
         full = name == "shape-paper"
-        insts = range(1242) if instances is None else instances
+        insts = list(range(1242)) if instances is None else instances
+        if instances is None and not full:
+            from gendr.grid import DISTRIBUTION_SETTINGS
+            insts += [{"distribution": {"name": n, "reversed": rev, "squared": sq, **params}, "tconorm": "average"}
+                      for n, params, rev in DISTRIBUTION_SETTINGS for sq in (False, True)]
         elevations = PAPER_ELEVATIONS if full else (30.0,)
         taus, n_lr = (PAPER_TAUS, 3) if full else ((0.1, 0.01, 0.001), 1)
         fine = [s for s in (PAPER_FINE_STEPS if full else (-0.5, 0.5)) if s != 0]
         for inst in insts:
-            t_best = best_tau.get(inst, 0.01)
+            spec = dict(inst) if isinstance(inst, dict) else {"instance": int(inst)}
+            key = _families(spec)[2] if isinstance(inst, dict) else int(inst)
+            t_best = best_tau.get(key, 0.01)
             for el in elevations:
-                base = full_config("shape", {"protocol": "paper", "instance": int(inst), "elevation": el})
+                base = full_config("shape", {"protocol": "paper", "elevation": el, **spec})
                 for t in taus:
                     yield dict(base, tau=t), n_lr
                 for t in fine_grid(t_best, fine):
@@ -330,12 +341,23 @@ def protocol_cost(model: CostModel, name: str, **kw) -> dict:
 STUDIES = ("shape-paper", "shape-reduced", "pose-paper", "pose-reduced")
 
 
+class _Const(dict):
+    """best_tau mapping every instance to one value."""
+
+    def __init__(self, value):
+        super().__init__()
+        self.value = value
+
+    def get(self, key, default=None):
+        return self.value
+
+
 def best_coarse_tau(rows) -> dict:
     """instance -> the τ of its best (lowest mean metric) shape row among ``rows`` (paper protocol)."""
     from .sweep import summarize_best
     rows = [r for r in rows if r.get("experiment") == "shape" and r.get("protocol") == "paper"
             and r.get("status") == "ok" and r.get("metric") is not None]
-    return {int(i): b["tau"] for i, b in summarize_best(rows, "shape").items() if i is not None}
+    return {i: b["tau"] for i, b in summarize_best(rows, "shape").items()}  # grid index, else label
 
 
 def cost_report(rows, *, studies=STUDIES, hours: float = 24.0, efficiency: float = 0.9, holdout=()) -> dict:
@@ -400,9 +422,14 @@ def cost_report(rows, *, studies=STUDIES, hours: float = 24.0, efficiency: float
         res = protocol_cost(m, study, best_tau=measured)
         if study.startswith("shape"):
             res["cpu_hours_if_best_tau"] = {
-                str(t): protocol_cost(m, study, best_tau={i: t for i in range(1242)})["cpu_hours"] for t in (0.1, 0.001)}
+                str(t): protocol_cost(m, study, best_tau=_Const(t))["cpu_hours"] for t in (0.1, 0.001)}
+        held = [h["ratio"] for h in report["holdout"] if h["experiment"] == study.split("-")[0]]
+        if held:  # full-length runs measured beside the model: scale by their median ratio
+            res["holdout_factor"] = float(np.median(held))
+            res["cpu_hours_holdout_corrected"] = res["cpu_hours"] * res["holdout_factor"]
+        cpu_h = res.get("cpu_hours_holdout_corrected", res["cpu_hours"])
         res["cores_for_hours"] = {"hours": hours, "efficiency": efficiency,
-                                  "cores": int(math.ceil(res["cpu_hours"] / (hours * efficiency)))}
+                                  "cores": int(math.ceil(cpu_h / (hours * efficiency)))}
         report["studies"].append(res)
     return report
 
@@ -449,6 +476,9 @@ def format_report(report) -> str:
             extra = " (fine stage at best τ 0.1 for all: " + \
                     f"{s['cpu_hours_if_best_tau']['0.1']:,.0f}; 0.001: {s['cpu_hours_if_best_tau']['0.001']:,.0f})"
         lines.append(f"{s['study']}: {s['runs']:,} runs, {s['cpu_hours']:,.0f} CPU-hours{extra}; longest run "
-                     f"{s['longest_run_s']:,.0f} s; {c['cores']:,} cores for {c['hours']:g} h at "
-                     f"{c['efficiency']:.0%} utilisation")
+                     f"{s['longest_run_s']:,.0f} s")
+        if "holdout_factor" in s:
+            lines.append(f"  × {s['holdout_factor']:.2f} (held-out full-length runs / model) = "
+                         f"{s['cpu_hours_holdout_corrected']:,.0f} CPU-hours")
+        lines.append(f"  {c['cores']:,} cores for {c['hours']:g} h at {c['efficiency']:.0%} utilisation")
     return "\n".join(lines)

@@ -39,9 +39,18 @@ TUNE_TCONORMS = ("max", "probabilistic", "einstein", "yager(2)", "dombi(0.5)")
 COARSE_SHARE = 0.6
 
 
-def _position(index):
-    from .figures import _position as pos
-    return pos(int(index))
+def _coords(spec):
+    """(distribution without the squared transform, squared, T-conorm) labels of a candidate: a grid
+    index or a config dict outside the grid (``{"distribution": {...}, "tconorm": "average"}``)."""
+    from .common import instance_from_config
+    dist, tcn, _ = instance_from_config({"instance": spec} if isinstance(spec, int) else spec)
+    return dist.label().replace("+sq", ""), bool(dist.squared), tcn.label()
+
+
+def _spec_key(spec):
+    """How :func:`~gendr_experiments.sweep.summarize_best` keys a candidate: its grid index, else its label."""
+    from .common import instance_from_config
+    return int(spec) if not isinstance(spec, dict) else instance_from_config(spec)[2]
 
 
 def default_candidates() -> list[int]:
@@ -53,21 +62,29 @@ def default_candidates() -> list[int]:
             for t in TUNE_TCONORMS]
 
 
-def spread_order(instances) -> list[int]:
-    """``instances`` reordered so that every prefix spreads over distributions, T-conorms and
-    plain/squared: each next one has the fewest predecessors sharing its distribution, T-conorm and
-    variant (ties: the given order). A budget that fits k candidates tries a varied k."""
-    rest = list(dict.fromkeys(int(i) for i in instances))
+def spread_order(instances) -> list:
+    """``instances`` (grid indices, or config dicts outside the grid) reordered so that every prefix
+    spreads over distributions, T-conorms and plain/squared: each next one has the fewest predecessors
+    sharing its distribution, T-conorm and variant (ties: the given order). A budget that fits k
+    candidates tries a varied k."""
+    rest, seen = [], set()
+    for i in instances:
+        i = i if isinstance(i, dict) else int(i)
+        if _spec_key(i) not in seen:
+            seen.add(_spec_key(i))
+            rest.append(i)
+    coords = {_spec_key(i): _coords(i) for i in rest}
     counts = [{}, {}, {}]
     out = []
+
+    def load(i):
+        cs = coords[_spec_key(i)]
+        return (sum(c.get(x, 0) for c, x in zip(counts, cs)), counts[0].get(cs[0], 0))
+
     while rest:
-        def load(i):
-            d, sq, t = _position(i)
-            return (counts[0].get(d, 0) + counts[1].get(t, 0) + counts[2].get(sq, 0), counts[0].get(d, 0))
-        best = min(range(len(rest)), key=lambda k: (load(rest[k]), k))
-        i = rest.pop(best)
-        for c, key in zip(counts, (_position(i)[0], _position(i)[2], _position(i)[1])):
-            c[key] = c.get(key, 0) + 1
+        i = rest.pop(min(range(len(rest)), key=lambda k: (load(rest[k]), k)))
+        for c, x in zip(counts, coords[_spec_key(i)]):
+            c[x] = c.get(x, 0) + 1
         out.append(i)
     return out
 
@@ -145,7 +162,8 @@ def tune(target: str, *, budget: float, store="tune.jsonl", protocol: str = "qui
     """Search instances × τ × learning rates for shape optimisation of ``target`` within ``budget``
     seconds of wall time (see the module docstring); rows go to ``store`` (JSON lines, resumable).
 
-    ``instances``: grid indices (default :func:`default_candidates`), tried in :func:`spread_order`;
+    ``instances``: grid indices or config dicts outside the grid (``{"distribution": {...},
+    "tconorm": "average"}``; default :func:`default_candidates`), tried in :func:`spread_order`;
     ``taus``: the coarse grid of blur widths; ``lrs``: learning rates (default the protocol's);
     ``base``: further config settings (``{"image_size": 32, "steps": 60}``, ...); ``workers``: local
     processes as :func:`~gendr_experiments.sweep.execute` (0: in this process; default the CPU
@@ -173,12 +191,14 @@ def tune(target: str, *, budget: float, store="tune.jsonl", protocol: str = "qui
     lrs = [float(x) for x in (lrs or [full_config("shape", base)["lr"]])]
     if not lrs or any(not (math.isfinite(x) and x > 0) for x in lrs):
         raise ParameterError(f"tune lrs={lrs!r} must be a non-empty list of learning rates > 0")
-    cands = spread_order(default_candidates() if instances is None else instances)
-    if not cands:
+    specs = spread_order(default_candidates() if instances is None else instances)
+    if not specs:
         raise ParameterError("tune: no candidate instances")
+    spec_of = {_spec_key(i): i for i in specs}
+    cands = list(spec_of)  # keys as summarize_best gives them: grid index, else label
     deadline = t_start + float(budget)
     axes = {"tau": taus, "lr": lrs, "seed": seeds}
-    coarse = {i: expand("shape", base, instances=[i], axes=axes) for i in cands}
+    coarse = {k: expand("shape", base, instances=[spec_of[k]], axes=axes) for k in cands}
     kw = dict(store=store, workers=workers, progress=False, other_code=other_code)
     parallel = 1 if workers == 0 else (workers or os.cpu_count() or 1)
     st = ResultStore(store)
@@ -254,7 +274,7 @@ def tune(target: str, *, budget: float, store="tune.jsonl", protocol: str = "qui
     done_keys = {r["key"] for r in st.rows()}
     for i in order:
         b = best[i]
-        cfgs = expand("shape", base, instances=[i], axes={"tau": fine_grid(b["tau"], fine_steps), "lr": [b["lr"]],
+        cfgs = expand("shape", base, instances=[spec_of[i]], axes={"tau": fine_grid(b["tau"], fine_steps), "lr": [b["lr"]],
                                                           "seed": seeds})
         pending = [c for c in cfgs if _key(c) not in done_keys]
         if left > 0 and fits(fine + pending, left):
@@ -266,7 +286,8 @@ def tune(target: str, *, budget: float, store="tune.jsonl", protocol: str = "qui
     mine = all_coarse + [c for _, cfgs in refined for c in cfgs]
     final = summarize_best(_rows_of(st, mine), "shape")
     refined_set = {i for i, _ in refined}
-    ranking = [dict(instance=i, label=b["label"], tau=b["tau"], lr=b["lr"], score=b["score"], n=b["n"],
+    ranking = [dict(instance=i if isinstance(i, int) else None, label=b["label"], tau=b["tau"], lr=b["lr"],
+                    score=b["score"], n=b["n"],
                     refined=i in refined_set) for i, b in sorted(final.items(), key=lambda kv: kv[1]["score"])]
     return TuneResult(best=ranking[:max(1, int(top))], ranking=ranking, plan=plan, store=str(st.path),
                       seconds=time.monotonic() - t_start, runs=len(st.rows()) - n_before, skipped=skipped)
