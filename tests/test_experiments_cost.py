@@ -70,3 +70,28 @@ def test_cli_cost_on_the_committed_timing_rows(tmp_path, capsys):
     text = capsys.readouterr().out
     assert "shape/paper" in text and "pose-reduced" in text and "CPU-hours" in text and "cores for 24 h" in text
     assert gendr_main(["experiment", "cost", str(RESULTS / "cost_timing.jsonl"), "--studies", "nope"]) == 2
+
+
+def test_the_full_protocol_commands_are_the_studies_the_model_counts():
+    """experiments/paper_grid.sh shape-full / pose-full (printed with GENDR=echo) ask for the grids the
+    cost model prices (PAPER_TAUS, PAPER_LRS, PAPER_ELEVATIONS, PAPER_FINE_STEPS; pose: 2 lr × 3 bins)."""
+    import os
+    import subprocess
+    from gendr_experiments.cli import _floats, build_parser
+    from gendr_experiments.cost import PAPER_ELEVATIONS, PAPER_FINE_STEPS, PAPER_LRS, PAPER_TAUS
+    script = RESULTS.parent / "paper_grid.sh"
+
+    def parsed(case):
+        out = subprocess.run(["bash", str(script), case], capture_output=True, text=True, check=True,
+                             env=dict(os.environ, GENDR="echo", SCHEDULER="tcp://127.0.0.1:8786")).stdout
+        args = out.split()
+        assert args[:2] == ["experiment", "sweep"] and "--scheduler" in args
+        return build_parser().parse_args(args[1:])
+
+    a = parsed("shape-full")
+    assert (a.protocol, a.instances, a.no_refine) == ("paper", "all", False)
+    assert tuple(_floats(a.taus)) == PAPER_TAUS and tuple(_floats(a.lrs)) == PAPER_LRS
+    assert tuple(_floats(a.elevations)) == PAPER_ELEVATIONS and tuple(_floats(a.fine_steps)) == PAPER_FINE_STEPS
+    p = parsed("pose-full")
+    assert (p.experiment, p.instances, p.no_refine, p.set) == ("pose", "all", True, ["pairs=200"])
+    assert _floats(p.lrs) == [0.1, 0.3] and len(p.bins.split(",")) == 3

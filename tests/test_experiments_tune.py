@@ -91,10 +91,11 @@ def test_tune_within_budget_ranks_instances(tmp_path):
     rows = load_rows(store)
     assert len(rows) == res.runs >= 2 and all(r["status"] == "ok" for r in rows)
     assert res.plan["coarse_instances"] >= 1
-    # resume: finished runs are not run again
-    again = tune("tetrahedron", budget=2.0, store=store, base=dict(TINY, steps=2), workers=0,
-                 taus=(0.1, 0.02), fine_steps=(-0.25, 0.25), instances=[res.best[0]["instance"]])
-    assert again.runs == 0 and again.best[0]["instance"] == res.best[0]["instance"]
+    # resume: finished runs are not run again (every key once in the file)
+    n = len(store.read_text().splitlines())
+    again = tune("tetrahedron", budget=3.0, store=store, base=dict(TINY, steps=2), workers=0,
+                 taus=(0.1, 0.02), fine_steps=(-0.25, 0.25))
+    assert len(store.read_text().splitlines()) == len(load_rows(store)) == n + again.runs
 
 
 @pytest.mark.parametrize("kwargs, error, words", [

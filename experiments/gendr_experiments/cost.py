@@ -354,9 +354,11 @@ class _Const(dict):
 
 def best_coarse_tau(rows) -> dict:
     """instance -> the τ of its best (lowest mean metric) shape row among ``rows`` (paper protocol)."""
+    from .shape import shape_config
     from .sweep import summarize_best
+    steps = shape_config(protocol="paper")["steps"]  # not the short timing runs
     rows = [r for r in rows if r.get("experiment") == "shape" and r.get("protocol") == "paper"
-            and r.get("status") == "ok" and r.get("metric") is not None]
+            and r.get("status") == "ok" and r.get("metric") is not None and r["config"].get("steps") == steps]
     return {i: b["tau"] for i, b in summarize_best(rows, "shape").items()}  # grid index, else label
 
 

@@ -9,7 +9,10 @@ user's own target — a mesh file, a built-in scene, or silhouette images with t
 1. probe: the first candidate's coarse runs, which also time this machine and problem;
 2. coarse: as many further candidates (in an order whose every prefix spreads over distributions,
    T-conorms and plain/squared) as the cost model predicts to fit in 60 % of what is left;
-3. fine: the finer τ grid for the best instances, best first, as many as fit in the rest.
+3. fine: the finer τ grid for the best instances not refined yet (the top quarter of the coarse
+   ranking, at least ``top``), best first, as many as fit in the rest;
+
+and 2-3 again while time and candidates are left.
 
 Predictions use :func:`gendr_experiments.cost.run_features` (pixel-face pairs from the geometry and
 τ) with ``seconds = a + b·k·gpairs`` fitted to the runs finished so far (wall seconds, ``workers`` in
@@ -37,6 +40,8 @@ TUNE_DISTRIBUTIONS = ("uniform", "cubic_hermite", "gaussian", "laplace", "logist
                       "reciprocal", "gumbel_min", "exponential rev", "gamma(0.5) rev", "gamma(2) rev")
 TUNE_TCONORMS = ("max", "probabilistic", "einstein", "yager(2)", "dombi(0.5)")
 COARSE_SHARE = 0.6
+#: the fine grid is spent on the best instances: this share of the coarse ranking (at least ``top``)
+REFINE_SHARE = 0.25
 
 
 def _coords(spec):
@@ -250,42 +255,61 @@ def tune(target: str, *, budget: float, store="tune.jsonl", protocol: str = "qui
         raise ParameterError(f"tune: no run finished within budget={budget!r} s; raise --budget")
     say(f"cost: ~{cal.predict(feats(coarse[cands[0]][0])):.2f} s per run (a={cal.a:.2f} s, b={cal.b:.3g} s per "
         f"billion pairs)")
-    # 2. coarse grid for as many further candidates as fit in COARSE_SHARE of what is left
-    left = deadline - time.monotonic()
-    chosen, todo = [cands[0]], []
-    done_keys = {r["key"] for r in st.rows()}
-    for i in cands[1:]:
-        pending = [c for c in coarse[i] if _key(c) not in done_keys]
-        if fits(todo + pending, COARSE_SHARE * left):
-            todo += pending
-            chosen.append(i)
+    # rounds until the budget or the candidates run out:
+    # 2. the coarse grid for as many further candidates as fit in COARSE_SHARE of what is left;
+    # 3. the fine τ grid for the best coarse instances not refined yet (the top ``refine_share`` of the
+    #    ranking, at least ``top``), best first, as many as fit in the rest.
+    chosen, refined = [cands[0]], {}
+    rounds = 0
+    while time.monotonic() < deadline:
+        rounds += 1
+        ran = 0
+        left = deadline - time.monotonic()
+        todo, new = [], []
+        done_keys = {r["key"] for r in st.rows()}
+        for i in cands:
+            if i in chosen:
+                continue
+            pending = [c for c in coarse[i] if _key(c) not in done_keys]
+            if fits(todo + pending, COARSE_SHARE * left):
+                todo += pending
+                new.append(i)
+        chosen += new
+        if new:
+            say(f"round {rounds}, coarse: {len(new)} more candidates ({len(chosen)} of {len(cands)}) × {len(taus)} τ × "
+                f"{len(lrs)} lr × {len(seeds)} seed")
+            ran += len(run_stage(todo, "coarse"))
+        all_coarse = [c for i in chosen for c in coarse[i]]
+        cal.fit(_rows_of(st, all_coarse + [c for cfgs in refined.values() for c in cfgs]), feats, warm)
+        best = summarize_best(_rows_of(st, all_coarse), "shape")
+        order = sorted(best, key=lambda i: best[i]["score"])
+        order = [i for i in order[:max(int(top), math.ceil(REFINE_SHARE * len(order)))] if i not in refined]
+        left = deadline - time.monotonic()
+        fine, picked = [], {}
+        done_keys = {r["key"] for r in st.rows()}
+        for i in order:
+            b = best[i]
+            cfgs = expand("shape", base, instances=[spec_of[i]],
+                          axes={"tau": fine_grid(b["tau"], fine_steps), "lr": [b["lr"]], "seed": seeds})
+            pending = [c for c in cfgs if _key(c) not in done_keys]
+            if left > 0 and fits(fine + pending, left):
+                fine += pending
+                picked[i] = cfgs
+        if picked:
+            say(f"round {rounds}, fine: {len(picked)} instances × {len(fine_steps)} τ around their best")
+            run_stage(fine, "fine")
+            refined.update(picked)
+            ran += len(picked)
+        if not ran:
+            break
     skipped = [i for i in cands if i not in chosen]
-    plan.update(coarse_instances=len(chosen), coarse_runs=len(chosen) * len(coarse[cands[0]]))
-    say(f"coarse: {len(chosen)} of {len(cands)} candidates × {len(taus)} τ × {len(lrs)} lr × {len(seeds)} seed"
-        + (f" ({len(skipped)} left out: raise --budget to try them)" if skipped else ""))
-    run_stage(todo, "coarse")
-    all_coarse = [c for i in chosen for c in coarse[i]]
-    cal.fit(_rows_of(st, all_coarse), feats, warm)
-    # 3. fine τ grid around the best τ of the best instances, best first, as many as fit
-    best = summarize_best(_rows_of(st, all_coarse), "shape")
-    order = sorted(best, key=lambda i: best[i]["score"])
-    left = deadline - time.monotonic()
-    fine, refined = [], []
-    done_keys = {r["key"] for r in st.rows()}
-    for i in order:
-        b = best[i]
-        cfgs = expand("shape", base, instances=[spec_of[i]], axes={"tau": fine_grid(b["tau"], fine_steps), "lr": [b["lr"]],
-                                                          "seed": seeds})
-        pending = [c for c in cfgs if _key(c) not in done_keys]
-        if left > 0 and fits(fine + pending, left):
-            fine += pending
-            refined.append((i, cfgs))
-    plan.update(fine_instances=len(refined), fine_runs=len(fine))
-    say(f"fine: {len(refined)} instances × {len(fine_steps)} τ around their best")
-    run_stage(fine, "fine")
-    mine = all_coarse + [c for _, cfgs in refined for c in cfgs]
+    if skipped:
+        say(f"{len(skipped)} of {len(cands)} candidates not tried: raise --budget to try them (resumes)")
+    plan.update(rounds=rounds, coarse_instances=len(chosen), fine_instances=len(refined),
+                runs=sum(1 for _ in _rows_of(st, all_coarse + [c for cfgs in refined.values() for c in cfgs])))
+    mine = all_coarse + [c for cfgs in refined.values() for c in cfgs]
     final = summarize_best(_rows_of(st, mine), "shape")
-    refined_set = {i for i, _ in refined}
+    refined_set = set(refined)
     ranking = [dict(instance=i if isinstance(i, int) else None, label=b["label"], tau=b["tau"], lr=b["lr"],
                     score=b["score"], n=b["n"],
                     refined=i in refined_set) for i, b in sorted(final.items(), key=lambda kv: kv[1]["score"])]
