@@ -103,19 +103,3 @@ def test_average_runs_beside_the_grid_in_sweeps_figures_and_findings(tmp_path, c
     capsys.readouterr()
     assert gendr_main(["experiment", "findings", str(out)]) == 0
     assert "| average poor |" in capsys.readouterr().out
-
-
-def test_cli_sweep_scheduler_address(tmp_path):
-    distributed = pytest.importorskip("distributed")
-    out_pool, out_dask = tmp_path / "pool.jsonl", tmp_path / "dask.jsonl"
-    common = ["experiment", "sweep", "--instances", "5,40", "--taus", "0.05", "--no-refine", "-q",
-              "--set", "target=tetrahedron", "--set", "steps=2", "--set", "image_size=12", "--set", "views=2",
-              "--set", "subdivisions=1"]
-    assert gendr_main(common + ["--workers", "0", "-o", str(out_pool)]) == 0
-    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
-                                  dashboard_address=None) as cluster:
-        assert gendr_main(common + ["--scheduler", cluster.scheduler_address, "-o", str(out_dask)]) == 0
-    from gendr_experiments.sweep import load_rows
-    a = {r["key"]: r["metric"] for r in load_rows(out_pool)}
-    b = {r["key"]: r["metric"] for r in load_rows(out_dask)}
-    assert a == b and len(a) == 2

@@ -125,6 +125,15 @@ def test_verify_rows_reports_drift(tmp_path):
     assert len(verify_rows(rows, sample=1, seed=3)) == 1
 
 
+def test_execute_starts_nothing_after_the_deadline(tmp_path):
+    import time
+    path = tmp_path / "r.jsonl"
+    assert execute(_configs(), path, workers=0, progress=False, deadline=time.monotonic() - 1) == []
+    assert not path.exists()
+    rows = execute(_configs()[:1], path, workers=0, progress=False, deadline=time.monotonic() + 600)
+    assert len(rows) == 1 and rows[0]["cpu_seconds"] > 0
+
+
 def test_tuple_axes_zip_keys():
     cfgs = expand("pose", {"steps": 2}, axes={("angle_min", "angle_max"): [(15, 35), (55, 75)], "seed": [0]})
     assert [(c["angle_min"], c["angle_max"]) for c in cfgs] == [(15, 35), (55, 75)]

@@ -1,4 +1,4 @@
-"""``gendr experiment shape|pose|sweep|figures|recon`` (also ``python -m gendr_experiments.cli``)."""
+"""``gendr experiment shape|pose|sweep|verify|cost|tune|figures|recon`` (also ``python -m gendr_experiments.cli``)."""
 from __future__ import annotations
 
 import argparse
@@ -109,7 +109,7 @@ POSE_OPTIONS = {"target": "target", "tau_start": "tau_start", "tau_end": "tau_en
 
 
 def cmd_shape(a) -> int:
-    from .shape import hard_silhouettes, run_shape, shape_cameras, shape_config
+    from .shape import run_shape, shape_config, shape_target_views
     from .figures import silhouette_frame, write_gif
     _apply_data(a)
     if a.threads:
@@ -123,11 +123,7 @@ def cmd_shape(a) -> int:
                 frames.append(sil.numpy())
     res = run_shape(cfg, callback=cb)
     if a.gif:
-        from .common import load_target_mesh
-        import torch
-        m = load_target_mesh(cfg["target"], normalize=cfg["normalize_target"])
-        tgt = hard_silhouettes(torch.tensor(m.vertices, dtype=torch.float32), torch.tensor(m.faces),
-                               shape_cameras(cfg), cfg["image_size"], cfg["backend"]).numpy()
+        tgt = shape_target_views(cfg)[1].numpy()
         write_gif([silhouette_frame(f, tgt, a.gif_views) for f in frames], a.gif)
         print(f"wrote {a.gif} ({len(frames)} frames)", file=sys.stderr)
     if a.output_mesh:
@@ -339,6 +335,62 @@ def cmd_figures(a) -> int:
     return 0
 
 
+def cmd_cost(a) -> int:
+    from .cost import STUDIES, cost_report, format_report
+    from .sweep import load_rows
+    _apply_data(a)
+    rows = [r for f in a.results for r in load_rows(f)]
+    if not rows:
+        print(f"{PROG}: error: no rows in {a.results}", file=sys.stderr)
+        return 2
+    studies = [s.strip() for s in a.studies.split(",") if s.strip()]
+    bad = [s for s in studies if s not in STUDIES]
+    if bad:
+        print(f"{PROG}: error: unknown studies {bad}; known: {', '.join(STUDIES)}", file=sys.stderr)
+        return 2
+    held = [r for f in (a.holdout or []) for r in load_rows(f)]
+    report = cost_report(rows, studies=studies, hours=a.hours, efficiency=a.efficiency, holdout=held)
+    print(format_report(report))
+    if a.json:
+        Path(a.json).write_text(json.dumps(report, indent=1))
+    return 0
+
+
+def cmd_tune(a) -> int:
+    from gendr.errors import GendrError
+    from .tune import tune
+    _apply_data(a)
+    try:
+        instances = select_instances(a) if (a.instances or a.dists or a.tconorms) else None
+    except ValueError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
+    base = _kv(a.set)
+    if a.backend:
+        base["backend"] = a.backend
+    try:
+        res = tune(a.target, budget=a.budget, store=a.output, protocol=a.protocol, instances=instances,
+                   taus=_floats(a.taus), lrs=_floats(a.lrs) if a.lrs else None, seeds=_ints(a.seeds),
+                   fine_steps=tuple(_floats(a.fine_steps)), base=base, workers=a.workers, top=a.top,
+                   other_code=a.other_code)
+    except GendrError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
+    p = res.plan
+    print(f"{res.runs} new runs in {res.seconds:.1f} s (budget {p['budget_s']:g} s): coarse grid for "
+          f"{p['coarse_instances']} of {p['candidates']} candidates, fine grid for {p['fine_instances']}; rows in "
+          f"{res.store}", file=sys.stderr)
+    print(f"{'rank':>4s} {'instance':>8s}  {'label':40s} {'tau':>9s} {'lr':>8s} {'score':>8s} {'runs':>4s}  refined")
+    for k, b in enumerate(res.best, 1):
+        inst = "-" if b["instance"] is None else str(b["instance"])
+        print(f"{k:4d} {inst:>8s}  {b['label']:40s} {b['tau']:9.3g} {b['lr']:8.3g} {b['score']:8.4f} "
+              f"{b['n']:4d}  {'yes' if b['refined'] else 'no'}")
+    if a.json:
+        Path(a.json).write_text(json.dumps({"best": res.best, "ranking": res.ranking, "plan": p, "runs": res.runs,
+                                            "seconds": res.seconds, "store": res.store}, indent=1))
+    return 0
+
+
 def cmd_recon(a) -> int:
     from . import recon
     return recon.main_cli(a)
@@ -357,6 +409,8 @@ def build_parser() -> argparse.ArgumentParser:
                "  gendr experiment sweep --experiment shape --dists logistic,cauchy --tconorms max,probabilistic \\\n"
                "      --taus 0.1,0.01 --lrs 0.05 -o sweep.jsonl\n"
                "  gendr experiment figures sweep.jsonl -o figs/\n"
+               "  gendr experiment cost experiments/results/cost_timing.jsonl\n"
+               "  gendr experiment tune --target my_model.obj --budget 600 --set image_size=32 --set views=8\n"
                "  gendr experiment recon --synthetic --steps 50 -o recon_out/")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
@@ -466,6 +520,54 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--pose", nargs="*", default=None, help="pose sweep JSONL file(s) (for 'pose similar to shape')")
     p.add_argument("--noise", type=float, default=0.03, help="single-run noise of the shape metric (see docs)")
     p.set_defaults(func=cmd_findings)
+
+    p = sub.add_parser("cost", formatter_class=F, help="cost model: seconds per run, CPU-hours of the paper's studies",
+                       description="Fit seconds = c0 + c1*view_steps + c2*k_dist*k_tconorm*gpairs (pixel-face pairs "
+                                   "from each run's geometry and tau) to result rows, one model per (experiment, "
+                                   "protocol), using cpu_seconds where rows have it; print the predicted seconds per "
+                                   "run of the paper protocol by distribution and tau, and the CPU-hours and cluster "
+                                   "size of the paper's studies (docs/experiments.md, 'Scale').")
+    p.add_argument("results", nargs="+", help="JSONL results files (sweeps, experiments/cost_timing.py)")
+    p.add_argument("--studies", default="shape-paper,shape-reduced,pose-paper,pose-reduced",
+                   help="shape-paper (1,242 instances x 5 elevations x 3 lr x 7 tau + 21 fine tau), shape-reduced "
+                        "(experiments/paper_grid.sh shape), pose-paper (1,242 x 3 bins x 200 pairs x 2 lr), "
+                        "pose-reduced (paper_grid.sh pose)")
+    p.add_argument("--holdout", nargs="+", default=None, metavar="FILE",
+                   help="rows NOT to fit: printed as measured vs predicted (experiments/cost_timing.py --holdout)")
+    p.add_argument("--hours", type=float, default=24.0, help="wall-clock time the cluster size is given for")
+    p.add_argument("--efficiency", type=float, default=0.9, help="fraction of the cores kept busy")
+    p.add_argument("--data", default=None, metavar="DIR", help="directory of the paper's files (paper:FILE)")
+    p.add_argument("--json", default=None, metavar="OUT.json", help="also write the report as JSON")
+    p.set_defaults(func=cmd_cost)
+
+    p = sub.add_parser("tune", formatter_class=F, help="pick the best instance for your own target within a budget",
+                       description="Run the paper's search (instances x tau x lr, then a finer tau grid around the best) "
+                                   "for shape optimisation of YOUR target -- a built-in scene, a mesh file, or "
+                                   "silhouettes + cameras as images:PATH.npz (docs/experiments.md, 'Tune') -- within "
+                                   "--budget seconds, and print the best instances with their tau and lr. Rows go to "
+                                   "a resumable JSONL file: rerun (with more budget) to go on.")
+    p.add_argument("--target", required=True, help="built-in scene, mesh file, paper:FILE or images:PATH.npz")
+    p.add_argument("--budget", type=float, required=True, help="wall-clock seconds")
+    p.add_argument("-o", "--output", default="tune.jsonl", help="results file (JSON lines, appended)")
+    p.add_argument("--instances", default=None, help="candidates by grid index (default: 12 distributions x 5 "
+                                                     "T-conorms x plain/squared)")
+    p.add_argument("--dists", default=None, help="candidate distribution labels (see sweep --list-labels)")
+    p.add_argument("--tconorms", default=None, help="candidate T-conorm labels")
+    p.add_argument("--variants", default="plain,squared", help="with --dists/--tconorms: plain and/or squared")
+    p.add_argument("--taus", default="0.1,0.01,0.001", help="coarse grid of blur widths")
+    p.add_argument("--fine-steps", default="-0.5,-0.25,0.25,0.5", help="fine grid: best_tau * 10**s")
+    p.add_argument("--lrs", default=None, help="learning rates (default: the protocol's lr)")
+    p.add_argument("--seeds", default="0")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="a shape setting, e.g. --set image_size=32 --set views=8 --set steps=60")
+    p.add_argument("--backend", default=None, help="gendr backend (default: the protocol's)")
+    p.add_argument("--workers", type=int, default=None, help="local processes (default: CPU count; 0 = in-process)")
+    p.add_argument("--top", type=int, default=5, help="how many instances to print")
+    p.add_argument("--other-code", choices=("refuse", "keep", "rerun"), default="refuse",
+                   help="finished rows made by other code: refuse, keep them, or rerun them")
+    p.add_argument("--json", default=None, metavar="OUT.json", help="also write the ranking as JSON")
+    _protocol_options(p)
+    p.set_defaults(func=cmd_tune)
 
     p = sub.add_parser("figures", formatter_class=F, help="heatmaps and top-10%% histograms of sweep results")
     p.add_argument("results", nargs="+", help="JSONL results file(s) of `sweep`")

@@ -33,16 +33,18 @@ import gendr
 
 from gendr.errors import ParameterError
 
+from .targets import images_path, is_images_target, load_image_target
 from .common import (file_digest, flatten_edges, flatten_loss, instance_from_config, laplacian_loss,
                      load_target_mesh, load_template, make_renderer, mesh_laplacian, preset_config, renderer_tau,
                      resolve_data_path, soft_iou_loss, iou_loss_per_view)
 
-__all__ = ["SHAPE_DEFAULTS", "SHAPE_PRESETS", "shape_config", "run_shape", "ShapeProblem", "SphereDeformer", "shape_cameras"]
+__all__ = ["SHAPE_DEFAULTS", "SHAPE_PRESETS", "shape_config", "run_shape", "ShapeProblem", "SphereDeformer", "shape_cameras",
+           "shape_target_views"]
 
 SHAPE_DEFAULTS = dict(
     experiment="shape",
     protocol="quick",
-    target="airplane",          # built-in scene name, mesh file, or "paper:FILE" (user-supplied data)
+    target="airplane",          # built-in scene, mesh file, "paper:FILE" (user-supplied) or "images:PATH.npz"
     normalize_target=True,      # scale a mesh file into the unit ball (the paper does not)
     instance=None,              # grid index, or distribution/tconorm below
     distribution="logistic",
@@ -121,6 +123,23 @@ def shape_cameras(cfg: dict):
     return gendr.orbit_camera(az, float(cfg["elevation"]), float(cfg["distance"]), fov_y=float(cfg["fov_y"]))
 
 
+def shape_target_views(cfg: dict, *, silhouettes: bool = True):
+    """``(camera, target silhouettes [B, H, W] or None, (H, W))`` of a config: a mesh target (a built-in
+    scene or a mesh file) rendered hard from :func:`shape_cameras`, or an ``images:PATH.npz`` target's
+    own silhouettes and cameras (:mod:`gendr_experiments.targets`)."""
+    if is_images_target(cfg["target"]):
+        cam, sil = load_image_target(cfg["target"])
+        return cam, sil, tuple(sil.shape[1:])
+    size = int(cfg["image_size"])
+    cam = shape_cameras(cfg)
+    if not silhouettes:
+        return cam, None, (size, size)
+    target = load_target_mesh(cfg["target"], normalize=bool(cfg["normalize_target"]))
+    tv = torch.tensor(target.vertices, dtype=torch.float32)
+    tf = torch.tensor(target.faces)
+    return cam, hard_silhouettes(tv, tf, cam, size, cfg["backend"]), (size, size)
+
+
 def hard_silhouettes(vertices, faces, camera, image_size, backend="torch") -> torch.Tensor:
     r = gendr.Renderer("heaviside", "or", tau=1.0, image_size=image_size, backend=backend, eps=0.0, blend=None)
     with torch.no_grad():
@@ -139,8 +158,12 @@ def data_digests(cfg: dict) -> dict:
     """sha256 prefixes of the mesh files a config reads (built-in scenes have none)."""
     from gendr import scenes
     out = {}
+    if is_images_target(cfg.get("target")):
+        out["target"] = file_digest(images_path(cfg["target"]))
     for key in ("target", "template"):
         name = cfg.get(key)
+        if key in out:
+            continue
         if isinstance(name, str) and name not in scenes.SCENES and name != "icosphere":
             out[key] = file_digest(resolve_data_path(name))
     return out
@@ -160,12 +183,8 @@ class ShapeProblem:
     def __init__(self, config: dict | None = None, *, backend_options: dict | None = None, **overrides):
         self.cfg = cfg = shape_config(config, **overrides)
         torch.manual_seed(int(cfg["seed"]))
-        self.size = size = int(cfg["image_size"])
-        self.camera = cam = shape_cameras(cfg)
-        target = load_target_mesh(cfg["target"], normalize=bool(cfg["normalize_target"]))
-        tv = torch.tensor(target.vertices, dtype=torch.float32)
-        tf = torch.tensor(target.faces)
-        self.target_sil = hard_silhouettes(tv, tf, cam, size, cfg["backend"])
+        self.camera, self.target_sil, (H, W) = shape_target_views(cfg)
+        self.size = size = H if H == W else (H, W)
 
         dist, tcn, self.label = instance_from_config(cfg)
         self.tau = renderer_tau(cfg["tau"], dist.squared)

@@ -111,7 +111,7 @@ def run_config(cfg: dict) -> dict:
     Exceptions become rows with ``status="error"``."""
     _single_thread()
     from .common import instance_from_config
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     row = {"key": config_hash(cfg), "experiment": cfg["experiment"], "instance": cfg.get("instance"),
            "protocol": cfg.get("protocol")}
     try:
@@ -134,6 +134,7 @@ def run_config(cfg: dict) -> dict:
         if k in cfg:
             row[k] = cfg[k]
     row["seconds"] = time.perf_counter() - t0
+    row["cpu_seconds"] = time.process_time() - c0  # beside wall seconds: what a run costs on a shared machine
     row["config"] = cfg
     row["provenance"] = provenance(cfg.get("backend", "torch"))
     row["code_hash"] = row["provenance"]["code_hash"]
@@ -215,7 +216,7 @@ OTHER_CODE = ("refuse", "keep", "rerun")
 
 def execute(configs, store: ResultStore | str, *, workers: int | None = None, scheduler=None,
             progress: bool = True, retry_errors: bool = False, other_code: str = "refuse",
-            stream=None) -> list[dict]:
+            stream=None, deadline: float | None = None) -> list[dict]:
     """Run every config whose key is not yet in ``store``; append each row as it finishes.
 
     ``scheduler``: None (a local process pool with ``workers`` processes, default ``os.cpu_count()``;
@@ -225,6 +226,10 @@ def execute(configs, store: ResultStore | str, *, workers: int | None = None, sc
     code): ``"refuse"`` (default) raises :class:`OtherCodeError` before running anything, ``"keep"``
     counts them as done (each row still records the code that made it), ``"rerun"`` runs them again
     (the new row replaces the old one when read).
+    ``deadline``: a :func:`time.monotonic` value after which no further run is started (runs
+    already started finish and are stored; the rest stay to do, as after an interruption).
+    On a Dask cluster every connected worker must run this code (same
+    :func:`~gendr_experiments.common.source_hash`), else :class:`OtherCodeError` before anything runs.
     Returns the rows of all ``configs`` (finished earlier or now).
     """
     if other_code not in OTHER_CODE:
@@ -253,19 +258,28 @@ def execute(configs, store: ResultStore | str, *, workers: int | None = None, sc
             bar.set_postfix_str(f"last: {row.get('label')} metric={row.get('metric')}"[:70], refresh=False)
             bar.update(1)
 
-    if todo:
+    def late():
+        return deadline is not None and time.monotonic() >= deadline
+
+    if todo and not late():
         if scheduler is not None:
             from distributed import Client, as_completed as dask_completed
             client = scheduler if isinstance(scheduler, Client) else Client(scheduler)
             try:
+                _check_cluster_code(client, {c.get("backend", "torch") for _, c in todo})
                 futs = [client.submit(run_config, c, key=f"gendr-run-{k}", pure=False) for k, c in todo]
                 for fut in dask_completed(futs):
-                    finish(fut.result())
+                    if not fut.cancelled():
+                        finish(fut.result())
+                    if late():
+                        client.cancel([f for f in futs if not f.done()])
             finally:
                 if client is not scheduler:
                     client.close()
         elif workers == 0:
             for _, c in todo:
+                if late():
+                    break
                 finish(run_config(c))
         else:
             import multiprocessing as mp
@@ -273,11 +287,31 @@ def execute(configs, store: ResultStore | str, *, workers: int | None = None, sc
             with ProcessPoolExecutor(max_workers=min(n, len(todo)), mp_context=mp.get_context("spawn")) as ex:
                 futs = [ex.submit(run_config, c) for _, c in todo]
                 for fut in as_completed(futs):
-                    finish(fut.result())
+                    if not fut.cancelled():
+                        finish(fut.result())
+                    if late():
+                        for f in futs:
+                            f.cancel()  # queued runs only; started ones finish
     if bar:
         bar.close()
     rows = {r["key"]: r for r in store.rows()}
     return [rows[k] for k in keyed if k in rows]
+
+
+def _worker_code_hashes(backends) -> dict:
+    return {b: source_hash(b) for b in backends}
+
+
+def _check_cluster_code(client, backends):
+    """Every worker connected to ``client`` computes the source hash of ``backends`` and must agree
+    with this process: a node with other code would write rows that resume then refuses."""
+    backends = sorted(backends)
+    here = _worker_code_hashes(backends)
+    there = client.run(_worker_code_hashes, backends)
+    other = {w: h for w, h in there.items() if h != here}
+    if other:
+        raise OtherCodeError(f"{len(other)} of {len(there)} Dask workers run other code than this client "
+                             f"(code_hash {here}): {other}. Give every node the same checkout")
 
 
 # ------------------------------------------------------------------------------------------------

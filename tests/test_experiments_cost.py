@@ -1,0 +1,97 @@
+"""The cost model: pair counts from the geometry, the fit, the study counts, the CLI."""
+from pathlib import Path
+
+import pytest
+
+from gendr.cli import main as gendr_main
+from gendr_experiments.common import paper_data_dir
+from gendr_experiments.cost import CostModel, fit_cost_model, protocol_runs, run_features
+from gendr_experiments.sweep import full_config
+
+TINY = dict(target="tetrahedron", steps=4, image_size=16, views=2, subdivisions=1)
+LOGISTIC_PROB, CAUCHY_PROB, UNIFORM_MAX = 271, 379, 0
+RESULTS = Path(__file__).resolve().parents[1] / "experiments" / "results"
+HAVE_PAPER_DATA = all((paper_data_dir() / f).is_file() for f in ("sphere_642.obj", "teapot.obj", "airplane.obj"))
+
+
+def _cfg(inst, tau, **kw):
+    return full_config("shape", dict(TINY, instance=inst, tau=tau, **kw))
+
+
+def test_pairs_grow_with_tau_and_heavy_tails_cover_the_image():
+    taus = (1e-4, 1e-3, 1e-2, 1e-1, 1.0)
+    logistic = [run_features(_cfg(LOGISTIC_PROB, t))["gpairs"] for t in taus]
+    assert logistic == sorted(logistic) and logistic[0] < logistic[-1]
+    # Cauchy: its eps radius (3,183·τ at eps 1e-4) covers the image, every face meets every pixel
+    dense = run_features(_cfg(CAUCHY_PROB, 1e-2))
+    faces = 80  # icosphere level 1
+    assert dense["gpairs"] * 1e9 == pytest.approx(TINY["steps"] * TINY["views"] * faces * 16 * 16)
+    # the reference cut-off bounds it: sqrt(cutoff·τ)
+    cut = run_features(_cfg(CAUCHY_PROB, 1e-2, cutoff=100.0))
+    assert cut["gpairs"] < dense["gpairs"]
+    f = run_features(_cfg(UNIFORM_MAX, 0.1))
+    assert f["view_steps"] == 8 and f["dist_family"] == "uniform" and f["tconorm_family"] == "max"
+
+
+def test_fit_recovers_a_known_model():
+    truth = CostModel("shape", "quick", 0.3, 0.01, 40.0, {"logistic": 0.8, "cauchy": 1.25},
+                      {"probabilistic": 0.9, "max": 1 / 0.9})
+    rows = []
+    for inst in (LOGISTIC_PROB, CAUCHY_PROB, LOGISTIC_PROB - 1, CAUCHY_PROB - 1):  # - 1: max
+        for tau in (1e-3, 1e-2, 1e-1):
+            for steps in (2, 8):
+                cfg = _cfg(inst, tau, steps=steps)
+                rows.append({"experiment": "shape", "protocol": "quick", "status": "ok", "config": cfg,
+                             "seconds": 2 * truth.predict(cfg), "cpu_seconds": truth.predict(cfg)})
+    m = fit_cost_model(rows, prior_weight=1e-3)
+    assert m.timer == "cpu_seconds" and m.n_rows == len(rows)
+    assert m.median_abs_log_error < 0.01
+    for r in rows:
+        assert m.predict(r["config"]) == pytest.approx(r["cpu_seconds"], rel=0.03)
+    with pytest.raises(ValueError, match="no finished rows"):
+        fit_cost_model([])
+
+
+def test_study_run_counts():
+    def count(name, insts):
+        return sum(n for _, n in protocol_runs(name, instances=insts))
+    assert count("shape-reduced", [0]) == 3 + 2               # 3 coarse τ, best·10^±0.5
+    assert count("shape-paper", [0]) == 5 * (3 * 7 + 20)      # 5 elevations × (3 lr × 7 τ + 20 new fine τ)
+    assert count("pose-paper", [0]) == 3 * 2                  # 3 bins × 2 lr, 200 pairs each
+    with pytest.raises(ValueError, match="unknown study"):
+        next(protocol_runs("shape-everything"))
+
+
+@pytest.mark.skipif(not HAVE_PAPER_DATA, reason="the paper's meshes are user-supplied (docs/experiments.md)")
+def test_cli_cost_on_the_committed_timing_rows(tmp_path, capsys):
+    out = tmp_path / "cost.json"
+    assert gendr_main(["experiment", "cost", str(RESULTS / "cost_timing.jsonl"), "--studies", "pose-reduced",
+                       "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "shape/paper" in text and "pose-reduced" in text and "CPU-hours" in text and "cores for 24 h" in text
+    assert gendr_main(["experiment", "cost", str(RESULTS / "cost_timing.jsonl"), "--studies", "nope"]) == 2
+
+
+def test_the_full_protocol_commands_are_the_studies_the_model_counts():
+    """experiments/paper_grid.sh shape-full / pose-full (printed with GENDR=echo) ask for the grids the
+    cost model prices (PAPER_TAUS, PAPER_LRS, PAPER_ELEVATIONS, PAPER_FINE_STEPS; pose: 2 lr × 3 bins)."""
+    import os
+    import subprocess
+    from gendr_experiments.cli import _floats, build_parser
+    from gendr_experiments.cost import PAPER_ELEVATIONS, PAPER_FINE_STEPS, PAPER_LRS, PAPER_TAUS
+    script = RESULTS.parent / "paper_grid.sh"
+
+    def parsed(case):
+        out = subprocess.run(["bash", str(script), case], capture_output=True, text=True, check=True,
+                             env=dict(os.environ, GENDR="echo", SCHEDULER="tcp://127.0.0.1:8786")).stdout
+        args = out.split()
+        assert args[:2] == ["experiment", "sweep"] and "--scheduler" in args
+        return build_parser().parse_args(args[1:])
+
+    a = parsed("shape-full")
+    assert (a.protocol, a.instances, a.no_refine) == ("paper", "all", False)
+    assert tuple(_floats(a.taus)) == PAPER_TAUS and tuple(_floats(a.lrs)) == PAPER_LRS
+    assert tuple(_floats(a.elevations)) == PAPER_ELEVATIONS and tuple(_floats(a.fine_steps)) == PAPER_FINE_STEPS
+    p = parsed("pose-full")
+    assert (p.experiment, p.instances, p.no_refine, p.set) == ("pose", "all", True, ["pairs=200"])
+    assert _floats(p.lrs) == [0.1, 0.3] and len(p.bins.split(",")) == 3

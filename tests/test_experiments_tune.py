@@ -1,0 +1,143 @@
+"""``images:`` targets (silhouettes + cameras from a .npz), ``gendr experiment tune`` within a budget,
+and the cost model's features."""
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from gendr.cli import main as gendr_main
+from gendr.errors import InputValueError, ParameterError, ShapeError
+from gendr_experiments.common import file_digest
+from gendr_experiments.shape import run_shape, shape_config, shape_target_views
+from gendr_experiments.sweep import load_rows
+from gendr_experiments.targets import load_image_target, save_image_target
+from gendr_experiments.tune import default_candidates, spread_order, tune
+
+TINY = dict(target="tetrahedron", steps=3, image_size=12, views=2, subdivisions=1)
+
+
+def _mesh_target_as_images(path, cfg):
+    cam, sil, _ = shape_target_views(cfg)
+    return save_image_target(path, sil, azimuth=cam.eye.azimuth, elevation=cam.eye.elevation,
+                             distance=cam.eye.distance, fov_y=cam.fov_y)
+
+
+def test_images_target_reproduces_the_mesh_target_bit_for_bit(tmp_path):
+    cfg = shape_config(TINY, instance=271, tau=0.05)
+    target = _mesh_target_as_images(tmp_path / "t.npz", cfg)
+    a = run_shape(cfg)
+    b = run_shape(dict(cfg, target=target, image_size=99, views=7))  # size and views come from the file
+    for k in ("metric", "hard_iou_loss_initial", "soft_loss_first", "soft_loss_last"):
+        assert a[k] == b[k], k
+    assert b["data"] == {"target": file_digest(tmp_path / "t.npz")}
+
+
+def test_images_target_with_eye_and_intrinsics(tmp_path):
+    sil = np.zeros((2, 10, 12), dtype=np.uint8)
+    sil[:, 3:7, 4:8] = 255
+    np.savez(tmp_path / "e.npz", images=sil, eye=[[0, 0, 4], [4, 0, 0]], up=[0, 1, 0], fx=12.0, fy=12.0, cx=6.0,
+             cy=5.0)
+    cam, s = load_image_target(f"images:{tmp_path / 'e.npz'}")
+    assert s.shape == (2, 10, 12) and s.dtype == torch.float32 and float(s.max()) == 1.0
+    res = run_shape(dict(TINY, target=f"images:{tmp_path / 'e.npz'}", steps=2))
+    assert np.isfinite(res["metric"]) and res["steps_done"] == 2
+
+
+@pytest.mark.parametrize("arrays, error, words", [
+    (dict(images=np.zeros((4, 4)), azimuth=0.0, elevation=0.0, distance=3.0, fov_y=30.0), ShapeError, "[N, H, W]"),
+    (dict(images=np.full((2, 4, 4), 1.5), azimuth=0.0, elevation=0.0, distance=3.0, fov_y=30.0), InputValueError,
+     "[0, 1]"),
+    (dict(images=np.zeros((2, 4, 4)), azimuth=[0.0, 1.0, 2.0], elevation=0.0, distance=3.0, fov_y=30.0), ShapeError,
+     "azimuth"),
+    (dict(images=np.zeros((2, 4, 4)), azimuth=0.0, elevation=0.0, distance=3.0), InputValueError, "lens"),
+    (dict(images=np.zeros((2, 4, 4)), azimuth=0.0, elevation=0.0, fov_y=30.0), InputValueError, "distance"),
+    (dict(images=np.zeros((2, 4, 4)), eye=[0.0, 0.0, 3.0], fov_y=30.0), ShapeError, "eye"),
+    (dict(images=np.zeros((2, 4, 4)), azimuth=0.0, elevation=0.0, distance=3.0, fov_y=300.0), InputValueError,
+     "fov_y"),
+    (dict(pictures=np.zeros((2, 4, 4))), InputValueError, "'images'"),
+])
+def test_bad_images_files_raise_typed_errors_naming_the_value(tmp_path, arrays, error, words):
+    np.savez(tmp_path / "bad.npz", **arrays)
+    with pytest.raises(error, match=None) as info:
+        load_image_target(f"images:{tmp_path / 'bad.npz'}")
+    assert words in str(info.value) and "bad.npz" in str(info.value)
+
+
+def test_missing_images_file():
+    with pytest.raises(InputValueError, match="no_such.npz"):
+        load_image_target("images:/no/where/no_such.npz")
+
+
+def test_spread_order_prefixes_cover_the_families():
+    order = spread_order(default_candidates())
+    assert sorted(order) == sorted(default_candidates()) and len(order) == 120
+    from gendr_experiments.figures import _position
+    first = [_position(i) for i in order[:24]]
+    assert len({d for d, _, _ in first}) == 12 and {sq for _, sq, _ in first} == {0, 1}
+    assert len({t for _, _, t in first}) == 5
+
+
+def test_tune_within_budget_ranks_instances(tmp_path):
+    store = tmp_path / "tune.jsonl"
+    budget = 12.0
+    res = tune("tetrahedron", budget=budget, store=store, base=dict(TINY, steps=2), workers=0,
+               taus=(0.1, 0.02), fine_steps=(-0.25, 0.25))
+    assert res.seconds <= budget + 5.0  # a run in flight at the deadline finishes (tiny runs: well under 1 s)
+    assert 1 <= len(res.best) <= 5 and res.best == res.ranking[:len(res.best)]
+    scores = [b["score"] for b in res.ranking]
+    assert scores == sorted(scores) and all(0 <= s <= 1 for s in scores)
+    assert {"instance", "label", "tau", "lr", "score", "refined"} <= set(res.best[0])
+    rows = load_rows(store)
+    assert len(rows) == res.runs >= 2 and all(r["status"] == "ok" for r in rows)
+    assert res.plan["coarse_instances"] >= 1
+    # resume: finished runs are not run again (every key once in the file)
+    n = len(store.read_text().splitlines())
+    again = tune("tetrahedron", budget=3.0, store=store, base=dict(TINY, steps=2), workers=0,
+                 taus=(0.1, 0.02), fine_steps=(-0.25, 0.25))
+    assert len(store.read_text().splitlines()) == len(load_rows(store)) == n + again.runs
+
+
+@pytest.mark.parametrize("kwargs, error, words", [
+    (dict(budget=0), ParameterError, "budget=0"),
+    (dict(budget=-3.0), ParameterError, "budget=-3.0"),
+    (dict(budget=float("nan")), ParameterError, "budget=nan"),
+    (dict(budget=5, taus=()), ParameterError, "taus"),
+])
+def test_tune_rejects_bad_settings(tmp_path, kwargs, error, words):
+    with pytest.raises(error) as info:
+        tune("tetrahedron", store=tmp_path / "t.jsonl", base=TINY, workers=0, **kwargs)
+    assert words in str(info.value)
+    assert not (tmp_path / "t.jsonl").exists()
+
+
+def test_tune_rejects_missing_targets(tmp_path):
+    with pytest.raises(InputValueError, match="nowhere.obj"):
+        tune("nowhere.obj", budget=5, store=tmp_path / "t.jsonl", base=TINY, workers=0)
+    np.savez(tmp_path / "flat.npz", images=np.zeros((2, 4)), azimuth=0.0, elevation=0.0, distance=3.0, fov_y=30.0)
+    with pytest.raises(ShapeError, match="flat.npz"):
+        tune(f"images:{tmp_path / 'flat.npz'}", budget=5, store=tmp_path / "t.jsonl", base=TINY, workers=0)
+
+
+def test_cli_tune_prints_the_ranking(tmp_path, capsys):
+    cfg = shape_config(TINY)
+    target = _mesh_target_as_images(tmp_path / "t.npz", cfg)
+    out = tmp_path / "tune.jsonl"
+    args = ["experiment", "tune", "--target", target, "--budget", "6", "--workers", "0", "--taus", "0.1,0.02",
+            "--fine-steps=-0.25,0.25", "--top", "3", "-o", str(out), "--json", str(tmp_path / "best.json"),
+            "--set", "steps=2", "--set", "subdivisions=1"]
+    assert gendr_main(args) == 0
+    text = capsys.readouterr().out
+    assert "instance" in text and "tau" in text and "lr" in text
+    best = json.loads((tmp_path / "best.json").read_text())
+    assert 1 <= len(best["best"]) <= 3 and len(load_rows(out)) >= 2
+    assert gendr_main(["experiment", "tune", "--target", "tetrahedron", "--budget", "0", "-o", str(out)]) == 2
+    assert "budget=0" in capsys.readouterr().err
+
+
+def test_tune_takes_candidates_outside_the_grid(tmp_path):
+    avg = {"distribution": {"name": "logistic"}, "tconorm": "average"}
+    res = tune("tetrahedron", budget=8, store=tmp_path / "t.jsonl", base=dict(TINY, steps=2), workers=0,
+               taus=(0.1,), fine_steps=(0.25,), instances=[271, avg])
+    got = {b["label"]: b["instance"] for b in res.ranking}
+    assert got == {"logistic|probabilistic": 271, "logistic|average": None}
