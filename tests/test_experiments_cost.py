@@ -1,6 +1,7 @@
 """The cost model: pair counts from the geometry, the fit, the study counts, the CLI."""
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from gendr.cli import main as gendr_main
@@ -78,20 +79,30 @@ def test_the_full_protocol_commands_are_the_studies_the_model_counts():
     import os
     import subprocess
     from gendr_experiments.cli import _floats, build_parser
-    from gendr_experiments.cost import PAPER_ELEVATIONS, PAPER_FINE_STEPS, PAPER_LRS, PAPER_TAUS
+    from gendr_experiments.cost import (PAPER_ELEVATIONS, PAPER_FINE_STEPS, PAPER_FINE_STEPS_SQUARED, PAPER_LRS,
+                                        PAPER_TAUS, PAPER_TAUS_SQUARED, REDUCED_FINE_STEPS, REDUCED_TAUS)
     script = RESULTS.parent / "paper_grid.sh"
 
     def parsed(case):
         out = subprocess.run(["bash", str(script), case], capture_output=True, text=True, check=True,
                              env=dict(os.environ, GENDR="echo", SCHEDULER="tcp://127.0.0.1:8786")).stdout
-        args = out.split()
-        assert args[:2] == ["experiment", "sweep"] and "--scheduler" in args
-        return build_parser().parse_args(args[1:])
+        commands = []
+        for line in out.splitlines():
+            args = line.split()
+            assert args[:2] == ["experiment", "sweep"] and "--scheduler" in args
+            commands.append(build_parser().parse_args(args[1:]))
+        return commands
 
-    a = parsed("shape-full")
-    assert (a.protocol, a.instances, a.no_refine) == ("paper", "all", False)
-    assert tuple(_floats(a.taus)) == PAPER_TAUS and tuple(_floats(a.lrs)) == PAPER_LRS
-    assert tuple(_floats(a.elevations)) == PAPER_ELEVATIONS and tuple(_floats(a.fine_steps)) == PAPER_FINE_STEPS
-    p = parsed("pose-full")
+    plain, squared = parsed("shape-full")
+    for a, variant, taus, steps in ((plain, "plain", PAPER_TAUS, PAPER_FINE_STEPS),
+                                    (squared, "squared", PAPER_TAUS_SQUARED, PAPER_FINE_STEPS_SQUARED)):
+        assert (a.protocol, a.dists, a.tconorms, a.variants, a.no_refine) == ("paper", "all", "all", variant, False)
+        assert np.allclose(_floats(a.taus), taus) and tuple(_floats(a.lrs)) == PAPER_LRS
+        assert tuple(_floats(a.elevations)) == PAPER_ELEVATIONS and tuple(_floats(a.fine_steps)) == steps
+    # squared: widths sqrt(tau) at half the decade steps = the paper's renderer tau grid
+    assert np.allclose(np.square(_floats(squared.taus)), PAPER_TAUS)
+    for a in parsed("shape"):  # the reduced study the cost model prices as "shape-reduced"
+        assert tuple(_floats(a.taus)) == REDUCED_TAUS and tuple(_floats(a.fine_steps)) == REDUCED_FINE_STEPS
+    (p,) = parsed("pose-full")
     assert (p.experiment, p.instances, p.no_refine, p.set) == ("pose", "all", True, ["pairs=200"])
     assert _floats(p.lrs) == [0.1, 0.3] and len(p.bins.split(",")) == 3

@@ -30,7 +30,8 @@ import numpy as np
 from gendr.errors import ParameterError
 
 __all__ = ["Footprint", "footprint", "run_features", "CostModel", "fit_cost_model", "protocol_runs",
-           "protocol_cost", "PAPER_TAUS", "PAPER_LRS", "PAPER_ELEVATIONS", "PAPER_FINE_STEPS"]
+           "protocol_cost", "PAPER_TAUS", "PAPER_LRS", "PAPER_ELEVATIONS", "PAPER_FINE_STEPS",
+           "PAPER_TAUS_SQUARED", "PAPER_FINE_STEPS_SQUARED", "REDUCED_TAUS", "REDUCED_FINE_STEPS"]
 
 #: the paper's search (docs/reference_implementation.md §2): 7 coarse τ, 3 learning rates, 5
 #: elevations (each its own search), then 21 τ at 0.1-decade steps around the best one
@@ -38,6 +39,13 @@ PAPER_TAUS = tuple(10.0 ** -k for k in range(1, 8))
 PAPER_LRS = (10 ** -1.25, 10 ** -1.5, 10 ** -1.75)
 PAPER_ELEVATIONS = (-60.0, -30.0, 0.0, 30.0, 60.0)
 PAPER_FINE_STEPS = tuple(round(0.1 * k, 1) for k in range(-10, 11))
+#: gendr's τ is a width (squared instances render with width²): the paper's renderer τ grid for the
+#: squared half is the widths sqrt(τ), its 0.1-decade fine steps are 0.05-decade steps of the width
+PAPER_TAUS_SQUARED = tuple(math.sqrt(t) for t in PAPER_TAUS)
+PAPER_FINE_STEPS_SQUARED = tuple(round(0.05 * k, 2) for k in range(-10, 11))
+#: experiments/paper_grid.sh shape: widths 10^-2.5, 10^-2, 10^-1.5, then best·10^±0.25
+REDUCED_TAUS = (0.003, 0.01, 0.03)
+REDUCED_FINE_STEPS = (-0.25, 0.25)
 
 
 #: per-pair cost factors of the distribution and T-conorm families relative to their geometric mean,
@@ -277,7 +285,7 @@ def protocol_runs(name: str, *, best_tau=None, instances=None):
     * ``shape-paper``: the paper's search, every instance: 5 elevations × 3 lr × 7 τ, then at the best
       lr 21 τ at 0.1-decade steps around the best τ (20 new; the best is a coarse run), per elevation;
     * ``shape-reduced``: ``experiments/paper_grid.sh shape``: the 1,242 and "average" with each of the
-      46 distribution settings, elevation 30, lr 10^-1.5, τ 0.1, 0.01, 0.001, then best·10^±0.5;
+      46 distribution settings, elevation 30, lr 10^-1.5, τ 0.003, 0.01, 0.03, then best·10^±0.25;
     * ``pose-paper``: every instance, 3 bins × 200 pairs (one run per bin) × lr {0.1, 0.3}, 1,000 steps;
     * ``pose-reduced``: ``experiments/paper_grid.sh pose``: 23 plain distributions × 5 T-conorms,
       3 bins × 17 pairs, lr 0.3.
@@ -297,12 +305,17 @@ def protocol_runs(name: str, *, best_tau=None, instances=None):
             insts += [{"distribution": {"name": n, "reversed": rev, "squared": sq, **params}, "tconorm": "average"}
                       for n, params, rev in DISTRIBUTION_SETTINGS for sq in (False, True)]
         elevations = PAPER_ELEVATIONS if full else (30.0,)
-        taus, n_lr = (PAPER_TAUS, 3) if full else ((0.1, 0.01, 0.001), 1)
-        fine = [s for s in (PAPER_FINE_STEPS if full else (-0.5, 0.5)) if s != 0]
+        n_lr = 3 if full else 1
         for inst in insts:
             spec = dict(inst) if isinstance(inst, dict) else {"instance": int(inst)}
             key = _families(spec)[2] if isinstance(inst, dict) else int(inst)
             t_best = best_tau.get(key, 0.01)
+            squared = spec["distribution"]["squared"] if isinstance(inst, dict) else grid_instance(int(inst)).distribution.squared
+            if full:
+                taus, fine = ((PAPER_TAUS_SQUARED, PAPER_FINE_STEPS_SQUARED) if squared else (PAPER_TAUS, PAPER_FINE_STEPS))
+            else:
+                taus, fine = REDUCED_TAUS, REDUCED_FINE_STEPS
+            fine = [s for s in fine if s != 0]
             for el in elevations:
                 base = full_config("shape", {"protocol": "paper", "elevation": el, **spec})
                 for t in taus:
