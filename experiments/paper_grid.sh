@@ -15,8 +15,8 @@ cd "$(dirname "${BASH_SOURCE[0]}")/.."
 GENDR="${GENDR:-.venv/bin/gendr}"   # a command (may have words: "python -m gendr.cli")
 RESULTS="${RESULTS:-experiments/results}"
 WORKERS="${WORKERS:-2}"
-RUN=(--workers "$WORKERS" --other-code keep -q)
-[[ -n "${SCHEDULER:-}" ]] && RUN=(--scheduler "$SCHEDULER" --other-code keep -q)
+RUN=(--workers "$WORKERS" --other-code keep --retry-errors -q)
+[[ -n "${SCHEDULER:-}" ]] && RUN=(--scheduler "$SCHEDULER" --other-code keep --retry-errors -q)
 FIVE="max,probabilistic,einstein,yager(2),dombi(0.5)"
 
 case "${1:-}" in
