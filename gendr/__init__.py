@@ -12,3 +12,4 @@ __version__ = "0.1.0"
 from .cameras import Camera, PerspectiveCamera, OrthographicCamera, IntrinsicsCamera, Orbit, orbit_camera
 from .renderer import Renderer, RenderSettings, available_backends
 from .grid import Instance, paper_grid
+from .gbuffer import GBuffer

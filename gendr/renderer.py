@@ -9,6 +9,8 @@ from typing import Any
 
 from .cameras import Camera
 from .distributions import Distribution, distribution as make_distribution
+from .gbuffer import GBuffer
+from .textures import check_settings as _check_texture_settings, check_textured_inputs
 from .errors import (BackendUnavailableError, DTypeError, InputValueError, ParameterError,
                      ShapeError, UnknownNameError)
 from .tconorms import TConorm, tconorm as make_tconorm
@@ -46,6 +48,8 @@ class RenderSettings:
     cull_backfaces: bool
     max_pairs: int
     cutoff: float | None = None
+    texture_filter: str = "bilinear"
+    texture_wrap: str = "repeat"
 
     @property
     def tau_value(self) -> float:
@@ -174,13 +178,16 @@ class Renderer:
         (cauchy, reciprocal, levy reversed) lose the coverage beyond it (e.g. cauchy ≈ 0.003 at
         cutoff 100 for squared distributions), and coverage jumps to 0 there. None (default): no
         cut-off, only the ``eps`` culling. docs/performance.md measures what it changes.
+    texture_filter : "bilinear" (default) or "nearest"; texture_wrap : "repeat" (default) or
+        "clamp": how textures given to :meth:`render` are sampled (docs/conventions.md, Textures).
     backend_options : passed to the backend (e.g. ``device="cuda"``).
     """
 
     def __init__(self, distribution="logistic", tconorm="probabilistic", tau=0.01, image_size=(256, 256),
                  backend="torch", eps=1e-4, *, blend="softmax", gamma=1e-4, background_eps=1e-3,
                  background=(0.0, 0.0, 0.0), ambient=0.5, diffuse=0.5, light_direction=(0.0, 0.0, -1.0),
-                 cull_backfaces=False, max_pairs=262_144, cutoff=None, **backend_options):
+                 cull_backfaces=False, max_pairs=262_144, cutoff=None, texture_filter="bilinear",
+                 texture_wrap="repeat", **backend_options):
         dist = make_distribution(distribution)
         tcn = make_tconorm(tconorm)
         _check_tau(tau)
@@ -204,13 +211,14 @@ class Renderer:
         _number("Renderer", "max_pairs", max_pairs, positive=True, integer=True)
         if cutoff is not None:
             cutoff = float(_number("Renderer", "cutoff", cutoff, positive=True))
+        _check_texture_settings(texture_filter, texture_wrap)
         light = _triple("Renderer", "light_direction", light_direction)
         if not any(light):
             raise ParameterError("Renderer parameter light_direction must not be the zero vector")
         self.settings = RenderSettings(
             dist, tcn, tau, (H, W), float(eps), blend, float(gamma), float(background_eps),
             _triple("Renderer", "background", background), float(ambient), float(diffuse), light,
-            bool(cull_backfaces), int(max_pairs), cutoff)
+            bool(cull_backfaces), int(max_pairs), cutoff, texture_filter, texture_wrap)
         self.backend = load_backend(backend, **backend_options)
 
     def __repr__(self):
@@ -219,7 +227,8 @@ class Renderer:
                 f"image_size={s.image_size}, backend={self.backend.name!r}, eps={s.eps:g}, blend={s.blend!r}"
                 + ("" if s.cutoff is None else f", cutoff={s.cutoff:g}") + ")")
 
-    def render(self, vertices, faces, camera: Camera, *, vertex_colors=None, face_colors=None):
+    def render(self, vertices, faces, camera: Camera, *, vertex_colors=None, face_colors=None, texture=None,
+               uvs=None, uv_faces=None):
         """Render a batch of meshes sharing one topology.
 
         vertices : [B, V, 3] or [V, 3] float32/float64, world units (backend array, or NumPy).
@@ -228,6 +237,13 @@ class Renderer:
             element (B is the broadcast of the vertex and camera batch sizes).
         vertex_colors : [B, V, 3] or [V, 3], or face_colors : [B, F, 3] or [F, 3] (albedo in
             [0, 1]; default white). Not both.
+        texture : [Ht, Wt, 3|4] or [B, Ht, Wt, 3|4] float32/float64 albedo (row 0 at the top; the
+            alpha channel is not used), sampled at the interpolated ``uvs`` with the renderer's
+            ``texture_filter`` / ``texture_wrap`` (docs/conventions.md, Textures); instead of
+            vertex/face colours. Differentiable (a tensor that requires grad gets a gradient).
+        uvs : [T, 2] or [B, T, 2] texture coordinates (u right, v up, OBJ convention);
+            differentiable. uv_faces : [F, 3] integer indices into ``uvs`` per face corner (OBJ's
+            separate ``vt`` indices); default ``faces`` (then T = V).
 
         Returns [B, H, W, 4] in the vertices' dtype: RGB, then alpha (the aggregated coverage).
         """
@@ -251,6 +267,11 @@ class Renderer:
             lo, hi = be.index_range(faces_a)
             if lo < 0 or hi >= V:
                 raise InputValueError(f"face indices must lie in [0, {V - 1}] (V = {V}), got range [{lo}, {hi}]")
+        if texture is not None and (vertex_colors is not None or face_colors is not None):
+            raise ParameterError("give a texture or vertex_colors/face_colors, not both")
+        if texture is None and (uvs is not None or uv_faces is not None):
+            raise ParameterError("uvs/uv_faces were given without a texture")
+        tex = None if texture is None else check_textured_inputs(be, verts, faces_a, texture, uvs, uv_faces)
         colors, per_face = None, False
         for name, value, n in (("vertex_colors", vertex_colors, V), ("face_colors", face_colors, faces_a.shape[0])):
             if value is None:
@@ -265,7 +286,38 @@ class Renderer:
         settings = self.settings
         if settings.tconorm.learnable:  # re-read (and re-check) a learnable p: an optimizer moves it
             settings = replace(settings, tconorm=settings.tconorm.refreshed())
+        if tex is not None:
+            return be.render(settings, verts, faces_a, camera, colors, per_face, texture=tex)
         return be.render(settings, verts, faces_a, camera, colors, per_face)
+
+    def rasterize(self, vertices, faces, camera: Camera) -> GBuffer:
+        """The G-buffer of a batch of meshes: per pixel the visible face, its barycentrics, view
+        depth and interpolated normal (:class:`~gendr.gbuffer.GBuffer`), as arrays of the backend.
+
+        vertices : [B, V, 3] or [V, 3] float32/float64; faces : [F, 3]; camera as for :meth:`render`.
+        Uses the image size, ``cull_backfaces`` and ``max_pairs`` of the settings; the coverage
+        settings (distribution, τ, eps, blend) play no part. Differentiable w.r.t. vertices and
+        camera (bary, depth, normal); face_id is piecewise constant.
+        """
+        if not isinstance(camera, Camera):
+            raise ParameterError(f"camera must be a gendr camera (PerspectiveCamera, ...), got {type(camera).__name__}")
+        be = self.backend
+        verts = be.float_array(vertices, "vertices")
+        faces_a = be.index_array(faces, "faces")
+        vshape = tuple(verts.shape)
+        if len(vshape) not in (2, 3) or vshape[-1] != 3 or vshape[-2] < 1:
+            raise ShapeError(f"vertices must have shape [B, V, 3] or [V, 3], got {list(vshape)}")
+        if len(faces_a.shape) != 2 or faces_a.shape[1] != 3:
+            raise ShapeError(f"faces must have shape [F, 3], got {list(faces_a.shape)}")
+        bad = be.first_nonfinite(verts)
+        if bad is not None:
+            raise InputValueError(f"vertices must be finite; vertices{list(bad[0])} = {bad[1]}")
+        if faces_a.shape[0] > 0:
+            lo, hi = be.index_range(faces_a)
+            if lo < 0 or hi >= vshape[-2]:
+                raise InputValueError(f"face indices must lie in [0, {vshape[-2] - 1}] (V = {vshape[-2]}), "
+                                      f"got range [{lo}, {hi}]")
+        return GBuffer(*be.rasterize(self.settings, verts, faces_a, camera))
 
     def to_numpy(self, image):
         """The backend's image as a NumPy array (detached)."""

@@ -26,7 +26,8 @@ from .errors import InputValueError, ShapeError, UnknownNameError, BackendUnavai
 
 __all__ = ["Mesh", "icosphere", "cube", "torus", "thin_shape", "airplane", "chair", "teapot_like",
            "tetrahedron", "open_mesh", "degenerate_mesh", "SCENES", "get_scene", "load_mesh",
-           "normalize", "concatenate"]
+           "normalize", "concatenate", "TexturedMesh", "textured_cube", "checker_texture", "TEXTURED_SCENES",
+           "get_textured_scene", "load_textured_mesh"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -452,5 +453,147 @@ def load_mesh(path) -> Mesh:
         raise InputValueError(f"mesh file {p!r} has non-finite vertex coordinates")
     try:
         return Mesh(vertices, np.asarray(faces))
+    except (ShapeError, InputValueError) as e:
+        raise InputValueError(f"mesh file {p!r}: {e}") from None
+
+
+# ------------------------------------------------------------------------------------------------
+# textured meshes
+# ------------------------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class TexturedMesh(Mesh):
+    """A triangle mesh with a UV texture map (OBJ-style: faces index positions and uvs separately).
+
+    Attributes (besides :class:`Mesh`'s):
+        uvs: float64 ``[T, 2]`` texture coordinates (u right, v up; docs/conventions.md, Textures).
+        uv_faces: int64 ``[F, 3]`` indices into ``uvs`` per face corner.
+        texture: float64 ``[Ht, Wt, C]``, C = 3 or 4, albedo in [0, 1], row 0 at the top.
+
+    Render with ``Renderer.render(m.vertices, m.faces, cam, texture=m.texture, uvs=m.uvs,
+    uv_faces=m.uv_faces)``. Raises ShapeError / InputValueError for bad shapes or indices.
+    """
+
+    uvs: np.ndarray = None
+    uv_faces: np.ndarray = None
+    texture: np.ndarray = None
+
+    def __post_init__(self):
+        super().__post_init__()
+        uv = np.ascontiguousarray(np.asarray(self.uvs, dtype=np.float64))
+        uvf = np.asarray(self.uv_faces)
+        tex = np.ascontiguousarray(np.asarray(self.texture, dtype=np.float64))
+        if uv.ndim != 2 or uv.shape[1] != 2 or not np.all(np.isfinite(uv)):
+            raise ShapeError(f"mesh uvs must be finite with shape [T, 2], got {tuple(uv.shape)}")
+        if uvf.shape != self.faces.shape or (uvf.size and not np.issubdtype(uvf.dtype, np.integer)):
+            raise ShapeError(f"mesh uv_faces must be integers of shape {tuple(self.faces.shape)}, got "
+                             f"{tuple(uvf.shape)} {uvf.dtype}")
+        uvf = np.ascontiguousarray(uvf.astype(np.int64))
+        if uvf.size and (uvf.min() < 0 or uvf.max() >= len(uv)):
+            raise InputValueError(f"mesh uv_faces must lie in [0, {len(uv)}), got range [{int(uvf.min())}, {int(uvf.max())}]")
+        if tex.ndim != 3 or tex.shape[2] not in (3, 4) or not np.all(np.isfinite(tex)):
+            raise ShapeError(f"mesh texture must be finite with shape [Ht, Wt, 3|4], got {tuple(tex.shape)}")
+        object.__setattr__(self, "uvs", uv)
+        object.__setattr__(self, "uv_faces", uvf)
+        object.__setattr__(self, "texture", tex)
+
+    def __repr__(self) -> str:
+        return f"TexturedMesh(V={self.num_vertices}, F={self.num_faces}, T={len(self.uvs)}, texture={self.texture.shape})"
+
+    def corner_uvs(self) -> np.ndarray:
+        """``[F, 3, 2]`` the uv of every face corner."""
+        return self.uvs[self.uv_faces]
+
+
+def checker_texture(height: int = 32, width: int = 48, square: int = 4) -> np.ndarray:
+    """A procedural ``[height, width, 3]`` texture: a 3×2 atlas of cells (one per cube side), each a
+    checker of ``square``-texel squares in two colours of its own times a smooth diagonal gradient.
+    Values are multiples of 1/255 (exact in 8-bit references)."""
+    h, w = _check_int("texture height", height, 2), _check_int("texture width", width, 2)
+    sq = _check_int("checker square", square, 1)
+    r, c = np.meshgrid(np.arange(h), np.arange(w), indexing="ij")
+    cell = (r * 2 // h) * 3 + (c * 3 // w)  # 0..5
+    palette = np.array([[230, 60, 40], [40, 170, 60], [50, 80, 220], [240, 200, 30], [200, 60, 200], [30, 200, 210]])
+    checker = ((r // sq) + (c // sq)) % 2
+    base = np.where(checker[..., None] == 1, palette[cell], 255 - palette[cell] // 2)
+    grad = 0.55 + 0.45 * (r / max(h - 1, 1) + c / max(w - 1, 1)) / 2
+    return np.round(base * grad[..., None]) / 255.0
+
+
+def textured_cube(size: float = 1.0, texture: np.ndarray | None = None) -> TexturedMesh:
+    """The cube of :func:`cube` (8 positions, 12 faces) with a texture atlas: side k uses cell
+    (k mod 3, k div 3) of a 3×2 grid of :func:`checker_texture` (inset by 5 % so bilinear filtering
+    never reads a neighbouring cell). 24 uvs indexed per face corner (``uv_faces`` ≠ ``faces``, as in
+    an OBJ file)."""
+    size = _check_pos("cube size", size)
+    tex = checker_texture() if texture is None else texture
+    positions, uvs, faces, uv_faces = [], [], [], []
+    key = {}
+    axes = np.eye(3)
+    sides = [(a, sgn) for a in range(3) for sgn in (1.0, -1.0)]
+    for k, (a, sgn) in enumerate(sides):
+        n = axes[a] * sgn
+        t1 = axes[(a + 1) % 3] * sgn  # t1 x t2 = n (right-handed, counter-clockwise seen from outside)
+        t2 = axes[(a + 2) % 3]
+        cu, cv = k % 3, k // 3
+        corner_ids, uv_ids = [], []
+        for s1, s2 in ((-1, -1), (1, -1), (1, 1), (-1, 1)):
+            p = 0.5 * size * (n + s1 * t1 + s2 * t2)
+            pk = tuple(np.round(p, 12))
+            if pk not in key:
+                key[pk] = len(positions)
+                positions.append(p)
+            corner_ids.append(key[pk])
+            uv_ids.append(len(uvs))
+            # v up: cell row cv counted from the top of the image
+            uvs.append(((cu + 0.05 + 0.9 * (s1 + 1) / 2) / 3, 1 - (cv + 0.05 + 0.9 * (1 - s2) / 2) / 2))
+        for tri in ((0, 1, 2), (0, 2, 3)):
+            faces.append([corner_ids[i] for i in tri])
+            uv_faces.append([uv_ids[i] for i in tri])
+    return TexturedMesh(np.array(positions), np.array(faces), uvs=np.array(uvs), uv_faces=np.array(uv_faces),
+                        texture=tex)
+
+
+TEXTURED_SCENES: dict[str, Callable[..., TexturedMesh]] = {"textured_cube": textured_cube}
+
+
+def get_textured_scene(name: str, **kwargs) -> TexturedMesh:
+    """Build the built-in textured scene ``name`` (:data:`TEXTURED_SCENES`)."""
+    if not isinstance(name, str) or name not in TEXTURED_SCENES:
+        raise UnknownNameError("textured scene", name, sorted(TEXTURED_SCENES))
+    return TEXTURED_SCENES[name](**kwargs)
+
+
+def load_textured_mesh(path) -> TexturedMesh:
+    """Read a textured mesh (OBJ + MTL + image, or GLB/GLTF) through trimesh: vertices, faces, the
+    per-vertex uvs trimesh makes (it splits vertices along uv seams, so ``uv_faces`` = ``faces``) and
+    the base-colour image as float albedo [Ht, Wt, 3|4] in [0, 1] (8-bit values / 255, not
+    sRGB-decoded). Raises InputValueError naming the path when the file has no uvs or no image."""
+    p = os.fspath(path)
+    if not os.path.isfile(p):
+        raise InputValueError(f"mesh file {p!r} does not exist" if not os.path.exists(p)
+                              else f"mesh path {p!r} is not a file")
+    try:
+        import trimesh
+    except ImportError as e:  # pragma: no cover - trimesh is a dev dependency
+        raise BackendUnavailableError(f"reading mesh file {p!r} needs trimesh (pip install trimesh): {e}") from None
+    try:
+        loaded = trimesh.load(p, force="mesh", process=False)
+    except Exception as e:
+        raise InputValueError(f"cannot read mesh file {p!r}: {type(e).__name__}: {e}") from None
+    visual = getattr(loaded, "visual", None)
+    uv = getattr(visual, "uv", None)
+    if uv is None or len(uv) != len(loaded.vertices):
+        raise InputValueError(f"mesh file {p!r} has no per-vertex texture coordinates")
+    material = getattr(visual, "material", None)
+    image = getattr(material, "image", None)
+    if image is None:
+        image = getattr(material, "baseColorTexture", None)
+    if image is None:
+        raise InputValueError(f"mesh file {p!r} has no texture image (map_Kd / baseColorTexture)")
+    img = np.asarray(image.convert("RGBA" if "A" in image.getbands() else "RGB"), dtype=np.float64) / 255.0
+    faces = np.asarray(loaded.faces)
+    try:
+        return TexturedMesh(np.asarray(loaded.vertices, dtype=np.float64), faces, uvs=np.asarray(uv), uv_faces=faces,
+                            texture=img)
     except (ShapeError, InputValueError) as e:
         raise InputValueError(f"mesh file {p!r}: {e}") from None

@@ -216,7 +216,10 @@ class DrJitBackend:
         return np.asarray(dr.detach(image).numpy())
 
     # --- rendering ----------------------------------------------------------------------------
-    def render(self, settings, verts, faces, camera, colors, per_face):
+    def render(self, settings, verts, faces, camera, colors, per_face, texture=None, gbuffer=False):
+        """The image [B, H, W, 4]; with ``gbuffer`` (then colors and texture are None) the packed
+        G-buffer [B, H, W, 8] of :func:`raster.rasterize`. ``texture``: (texture Input, uvs Input,
+        uv_faces int64 NumPy) from gendr.textures.check_textured_inputs."""
         double = verts.dtype == "float64"
         T, ops = self.types(double)
         cam = camera.array_params()
@@ -227,6 +230,10 @@ class DrJitBackend:
             slots["vertices"] = verts.data
         if colors is not None and colors.kind == "torch":
             slots["colors"] = colors.data
+        if texture is not None:
+            for name, inp in (("texture", texture[0]), ("uvs", texture[1])):
+                if inp.kind == "torch":
+                    slots[name] = inp.data
         if _is_torch(tau):
             slots["tau"] = tau
         for k, v in settings.tconorm.learnable.items():  # learnable T-conorm parameters (∂A/∂p)
@@ -235,8 +242,9 @@ class DrJitBackend:
         for k, (v, _) in cam.items():
             if _is_torch(v):
                 slots["cam:" + k] = v
+        args0 = (settings, camera, T, ops, verts, faces, colors, per_face, cam, tau)
         if not slots:
-            return self._render(settings, camera, T, ops, verts, faces, colors, per_face, cam, tau, {})
+            return self._render(*args0, {}, texture, gbuffer)
         torch = _torch()
         names = list(slots)
         out_dtype = torch.float64 if double else torch.float32
@@ -245,10 +253,11 @@ class DrJitBackend:
         args = [slots[n].to(dtype=out_dtype, device=dev) for n in names]
 
         def fn(*dj):
-            return self._render(settings, camera, T, ops, verts, faces, colors, per_face, cam, tau, dict(zip(names, dj)))
+            return self._render(*args0, dict(zip(names, dj)), texture, gbuffer)
         return _bridge().apply(fn, T, *args)
 
-    def _render(self, settings, camera, T, ops, verts, faces, colors, per_face, cam, tau, wrapped):
+    def _render(self, settings, camera, T, ops, verts, faces, colors, per_face, cam, tau, wrapped, texture=None,
+                gbuffer=False):
         """Everything in Dr.Jit; ``wrapped`` holds Dr.Jit versions of the torch inputs."""
         vflat = self._flat(wrapped.get("vertices", verts.data if verts.kind != "torch" else None), verts, T)
         Bv, V = (verts.shape[0], verts.shape[1]) if len(verts.shape) == 3 else (1, verts.shape[0])
@@ -292,11 +301,37 @@ class DrJitBackend:
             arrays = {k: self._opaque(self._param(wrapped.get("tcn:" + k, v), T)[0], T) for k, v in learn.items()}
             settings = replace(settings, tconorm=settings.tconorm.with_arrays(arrays))
         H, W = settings.image_size
+        if gbuffer:
+            out, B = raster.rasterize(settings, camera, ops, T, P, Bc, vflat, Bv, V, faces)
+            return T.Tensor(out, shape=(B, H, W, raster.GBUFFER_CHANNELS))
+        tex = None
+        if texture is not None:
+            ti, ui, uvf = texture
+            tflat = self._flat(wrapped.get("texture", ti.data if ti.kind != "torch" else None), ti, T)
+            uflat = self._flat(wrapped.get("uvs", ui.data if ui.kind != "torch" else None), ui, T)
+            Bt, Ht, Wt, C = (1, *ti.shape) if len(ti.shape) == 3 else ti.shape
+            if Bt not in (1, max(Bv, Bc)):
+                raise ShapeError(f"texture has batch size {Bt}, the render has {max(Bv, Bc)}")
+            Bu, Tn = (1, ui.shape[0]) if len(ui.shape) == 2 else ui.shape[:2]
+            if Bu not in (1, max(Bv, Bc)):
+                raise ShapeError(f"uvs have batch size {Bu}, the render has {max(Bv, Bc)}")
+            tex = (tflat, Bt, Ht, Wt, C, uflat, Bu, Tn, T.UInt32(np.asarray(uvf).reshape(-1).astype(np.uint32)))
+            out, B = raster.render(settings, camera, ops, T, P, Bc, vflat, Bv, V, faces, col, per_face, tau_arr, tex)
+            return T.Tensor(out, shape=(B, H, W, 4))
         if self.frozen is not None and faces.shape[0] > 0 and not learn:  # (frozen: p is a constant)
             out, B = self.frozen.render(settings, camera, T, ops, P, Bc, vflat, Bv, V, faces, col, per_face, tau_arr)
         else:
             out, B = raster.render(settings, camera, ops, T, P, Bc, vflat, Bv, V, faces, col, per_face, tau_arr)
         return T.Tensor(out, shape=(B, H, W, 4))
+
+    def rasterize(self, settings, verts, faces, camera):
+        """(face_id, bary, depth, normal): torch tensors (face_id int64) when any input is a torch
+        tensor, else Dr.Jit tensors (face_id TensorXi, int32); see gendr.GBuffer."""
+        g = self.render(settings, verts, faces, camera, None, False, gbuffer=True)
+        if _is_torch(g):
+            return g[..., 7].round().long(), g[..., 0:3], g[..., 3], g[..., 4:7]
+        fid = self.module.TensorXi(g[..., 7])
+        return fid, g[..., 0:3], g[..., 3], g[..., 4:7]
 
     def _flat(self, x, inp, T):
         """A flat AD array of ``T.Float`` from a Dr.Jit tensor (keeps AD) or the NumPy copy."""

@@ -87,8 +87,11 @@ class Faces:
     area), front (counter-clockwise), near, far, shade (21 arrays or None), cull_lo."""
 
 
-def prepare_faces(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, colors, per_face, clip=None, faces_u=None):
-    """``clip``: None decides from the data whether near-plane clipping (K = 4) is needed (a host
+def prepare_faces(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, colors, per_face, clip=None, faces_u=None,
+                  tex=None, normals=False):
+    """``tex``: (flat texture, Bt, Ht, Wt, C, flat uvs, Bu, T, flat UInt32 uv_faces) or None;
+    ``normals``: append the corners' unit normals to ``shade`` (G-buffer; computed without a blend too).
+    ``clip``: None decides from the data whether near-plane clipping (K = 4) is needed (a host
     read); True / False force it (frozen replays, where nothing may be read back: ``fc.all_inside``
     then holds the device-side answer, for the caller to verify afterwards). ``faces_u``: the faces
     as a flat UInt32 array (default: converted from ``faces_np``)."""
@@ -169,10 +172,15 @@ def prepare_faces(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, color
     fc.front = area2 > 0
     fc.near, fc.far = camera.near, camera.far
     fc.shade = None
-    if settings.blend is not None:
+    fc.tex = None if tex is None else tex[:5]
+    if settings.blend is not None or normals:
         fc.shade = _shading_data(settings, camera, ops, T, Pf, H, W, verts, Bv, V, B, F, b_f, f_f, faces_u,
-                                 vid, corner, colors, per_face)
+                                 vid, corner, colors, per_face, tex, normals)
+    fc.normal_row = UV_ROW + (6 if tex is not None else 0)
     return fc
+
+
+UV_ROW = 21  # first of the corners' u (3), v (3) in Faces.shade when textured
 
 
 def _clamp_min(x, lo):
@@ -188,9 +196,12 @@ def _dot(a, b):
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
-def _shading_data(settings, camera, ops, T, Pf, H, W, verts, Bv, V, B, F, b_f, f_f, faces_u, vid, v, colors, per_face):
+def _shading_data(settings, camera, ops, T, Pf, H, W, verts, Bv, V, B, F, b_f, f_f, faces_u, vid, v, colors, per_face,
+                  tex=None, normals_out=False):
     """21 per-face arrays: barycentric affine coefficients a(3), b(3), c0(3), view depths (3), lit
-    corner colours (3 corners × rgb) — the same quantities as gendr_torch.raster._shading_data."""
+    corner colours (3 corners × rgb) — the same quantities as gendr_torch.raster._shading_data; with
+    ``tex`` (colours then white: the lighting factor) the corners' u (3), v (3); with
+    ``normals_out`` the corners' unit normals (3 corners × xyz)."""
     Float, UInt32 = T.Float, T.UInt32
     m = B * F
     sx, sy, ox, oy = camera.ndc_affine(ops, Pf, H, W)
@@ -264,6 +275,16 @@ def _shading_data(settings, camera, ops, T, Pf, H, W, verts, Bv, V, B, F, b_f, f
         shade = settings.ambient + settings.diffuse * lam
         colour.append(tuple(albedo[i][c] * shade for c in range(3)))
     out = A + Bb + C0 + depth + [colour[i][c] for i in range(3) for c in range(3)]
+    if tex is not None:
+        uvflat, Bu, Tn, uvf = tex[5:]
+        ubase = (b_f if Bu > 1 else dr.zeros(UInt32, m)) * Tn
+        uid = [ubase + dr.gather(UInt32, uvf, f_f * 3 + i) for i in range(3)]
+        out += [dr.gather(Float, uvflat, uid[i] * 2 + c) for c in range(2) for i in range(3)]
+    if normals_out:
+        for i in range(3):
+            nrm = normals[i]
+            norm = _clamp_min(dr.sqrt(_dot(nrm, nrm)), 1e-30)
+            out += [nrm[c] / norm for c in range(3)]
     return [o if dr.width(o) == m else dr.zeros(Float, m) + o for o in out]
 
 
@@ -489,9 +510,54 @@ def coverage(s, ops, d, tau, x_cut):
     return p if x_cut is None else dr.select(x > x_cut, p, 0.0)
 
 
-def shade_pair(fc, T, f, px, py):
-    """(depth, (r, g, b)) of face ``f`` at the pixel (clamped perspective-correct barycentrics)."""
+def shade_pair(fc, T, f, px, py, settings=None):
+    """(depth, (r, g, b)) of face ``f`` at the pixel (clamped perspective-correct barycentrics);
+    textured faces (``fc.tex``) multiply the lighting by the texture, sampled as ``settings`` say."""
     sh = [dr.gather(T.Float, a, f) for a in fc.shade]
+    b, depth = _bary_depth(fc, T, sh, px, py)
+    col = tuple(b[0] * sh[12 + c] + b[1] * sh[15 + c] + b[2] * sh[18 + c] for c in range(3))
+    if fc.tex is not None:
+        u = b[0] * sh[UV_ROW] + b[1] * sh[UV_ROW + 1] + b[2] * sh[UV_ROW + 2]
+        v = b[0] * sh[UV_ROW + 3] + b[1] * sh[UV_ROW + 4] + b[2] * sh[UV_ROW + 5]
+        texel = _texel(fc, T, f, u, v, settings.texture_filter, settings.texture_wrap)
+        col = tuple(col[c] * texel[c] for c in range(3))
+    return depth, col
+
+
+def _texel(fc, T, f, u, v, filt, wrap):
+    """RGB of the texture at (u, v) for faces ``f`` (gendr.textures conventions; same arithmetic as
+    gendr_torch.raster._texel)."""
+    flat, Bt, Ht, Wt, C = fc.tex
+    Float, UInt32 = T.Float, T.UInt32
+    base = (f // fc.F) * (Ht * Wt) if Bt > 1 else UInt32(0)
+
+    def wrapi(i, n):  # integer-valued floats -> UInt32 in [0, n)
+        i = i - n * dr.floor(i / n) if wrap == "repeat" else dr.clip(i, 0.0, float(n - 1))
+        return UInt32(i)
+
+    def at(r, c):
+        idx = (base + r * Wt + c) * C
+        return [dr.gather(Float, flat, idx + ch) for ch in range(3)]
+
+    if filt == "nearest":
+        r = wrapi(dr.floor(dr.detach((1.0 - v) * Ht)), Ht)
+        c = wrapi(dr.floor(dr.detach(u * Wt)), Wt)
+        return at(r, c)
+    x, y = u * Wt - 0.5, (1.0 - v) * Ht - 0.5
+    x0, y0 = dr.floor(dr.detach(x)), dr.floor(dr.detach(y))
+    fx, fy = x - x0, y - y0
+    c0, c1, r0, r1 = wrapi(x0, Wt), wrapi(x0 + 1.0, Wt), wrapi(y0, Ht), wrapi(y0 + 1.0, Ht)
+    t00, t01, t10, t11 = at(r0, c0), at(r0, c1), at(r1, c0), at(r1, c1)
+    out = []
+    for ch in range(3):  # torch.lerp's arithmetic: a + w·(b − a)
+        top = t00[ch] + fx * (t01[ch] - t00[ch])
+        bot = t10[ch] + fx * (t11[ch] - t10[ch])
+        out.append(top + fy * (bot - top))
+    return out
+
+
+def _bary_depth(fc, T, sh, px, py):
+    """Clamped perspective-correct barycentrics (list of 3) and view depth from gathered shade rows."""
     u = [sh[i] * px + sh[3 + i] * py + sh[6 + i] for i in range(3)]
     s = u[0] + u[1] + u[2]
     s = dr.select(dr.abs(s) > T.tiny, s, 1.0)
@@ -499,8 +565,7 @@ def shade_pair(fc, T, f, px, py):
     bs = b[0] + b[1] + b[2]
     b = [bi / bs for bi in b]
     depth = _clamp_min(b[0] * sh[9] + b[1] * sh[10] + b[2] * sh[11], fc.near)
-    col = tuple(b[0] * sh[12 + c] + b[1] * sh[15 + c] + b[2] * sh[18 + c] for c in range(3))
-    return depth, col
+    return b, depth
 
 
 # ---------------------------------------------------------------------------------------------
@@ -799,7 +864,7 @@ def rgb_hard(s, fc, T, ops, pix):
         _, inside = signed_distance(fc, T, f, px, py)
         if cull:
             inside = inside & dr.gather(T.Bool, fc.front, f)
-        depth, _ = shade_pair(fc, T, f, px, py)
+        _, depth = _bary_depth(fc, T, [dr.gather(T.Float, a, f) for a in fc.shade[:12]], px, py)
         better = inside & (depth < best)
         return w, bits, dr.select(better, depth, best), dr.select(better, f, arg)
 
@@ -807,7 +872,7 @@ def rgb_hard(s, fc, T, ops, pix):
         _, _, _, arg = dr.while_loop((*pix.start(), dr.full(T.Float, math.inf, pix.n), dr.full(T.UInt32, _NONE, pix.n)),
                                      lambda w, bits, b, a: bits != 0, body, labels=("w", "bits", "best", "arg"))
     has = arg != _NONE
-    _, col = shade_pair(fc, T, dr.select(has, arg, 0), px, py)
+    _, col = shade_pair(fc, T, dr.select(has, arg, 0), px, py, s)
     return [dr.select(has, col[c], s.background[c]) for c in range(3)]
 
 
@@ -824,7 +889,7 @@ def rgb_softmax(s, fc, T, ops, pix, tau):
         live = p > 0.0
         if cull:
             live = live & dr.gather(T.Bool, fc.front, f)
-        depth, col = shade_pair(fc, T, f, px, py)
+        depth, col = shade_pair(fc, T, f, px, py, s)
         return live, p, (fc.far - depth) * zscale, col
 
     def body_max(w, bits, m):
@@ -852,9 +917,9 @@ def rgb_softmax(s, fc, T, ops, pix, tau):
     return [(num + wb * s.background[c]) / den for c, num in enumerate((r, g, b))]
 
 
-def render(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, colors, per_face, tau):
+def render(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, colors, per_face, tau, tex=None):
     """The image as a flat array [B·H·W·4] (RGBA interleaved) and B."""
-    return render_parts(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, colors, per_face, tau)[:2]
+    return render_parts(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, colors, per_face, tau, tex=tex)[:2]
 
 
 def culling_radius(settings, tau_value):
@@ -863,7 +928,7 @@ def culling_radius(settings, tau_value):
 
 
 def render_parts(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, colors, per_face, tau, *, cull_r=None,
-                 clip=None, faces_u=None, resid=None, keep_sums=False):
+                 clip=None, faces_u=None, resid=None, keep_sums=False, tex=None):
     """(image [B·H·W·4], B, fc): as :func:`render`; ``cull_r`` (an opaque Dr.Jit scalar, or None
     to derive it from the settings' τ), ``clip`` and ``faces_u`` let a frozen function pass
     everything data-dependent in as Dr.Jit inputs (see backend.FrozenRenderer)."""
@@ -876,7 +941,7 @@ def render_parts(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, colors
             for c in range(3):
                 out = dr.select(ch == c, settings.background[c], out)
         return out, B, None
-    fc = prepare_faces(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, colors, per_face, clip, faces_u)
+    fc = prepare_faces(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, colors, per_face, clip, faces_u, tex)
     if cull_r is None:
         r = culling_radius(settings, settings.tau_value)
         # opaque: the radius follows τ, and a literal would recompile the loop kernels
@@ -903,3 +968,55 @@ def render_parts(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, colors
         for c in range(3):
             out = dr.select(ch == c, dr.gather(T.Float, pix1.to_image(rgb[c]), p), out)
     return out, fc.B, fc
+
+
+# ---------------------------------------------------------------------------------------------
+# G-buffer
+# ---------------------------------------------------------------------------------------------
+GBUFFER_CHANNELS = 8  # bary (3), depth, normal (3), face id (as a float; -1: background)
+
+
+def rasterize(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np):
+    """The G-buffer as a flat array [B·H·W·8] (channels: GBUFFER_CHANNELS) and B: per pixel the
+    nearest face containing the centre (rgb_hard's z-buffer), see gendr.GBuffer."""
+    H, W = settings.image_size
+    nch = GBUFFER_CHANNELS
+    if faces_np.shape[0] == 0:
+        B = max(Bv, Bc)
+        ch = dr.arange(T.UInt32, nch * B * H * W) % nch
+        return dr.select(ch == nch - 1, T.Float(-1.0), T.Float(0.0)), B
+    fc = prepare_faces(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, None, False, normals=True)
+    fc.cull_lo = None
+    bins = Bins(fc, H, W, 0.0, T)
+    pix = Pixels(T, fc.B, H, W, bins)
+    px, py = pix.px, pix.py[0]
+    cull = settings.cull_backfaces
+
+    def body(w, bits, best, arg):
+        f, w, bits = pix.next_face(w, bits)
+        _, inside = signed_distance(fc, T, f, px, py)
+        if cull:
+            inside = inside & dr.gather(T.Bool, fc.front, f)
+        sh = [dr.gather(T.Float, a, f) for a in fc.shade[:12]]
+        _, depth = _bary_depth(fc, T, sh, px, py)
+        better = inside & (depth < best)
+        return w, bits, dr.select(better, depth, best), dr.select(better, f, arg)
+
+    with dr.suspend_grad():
+        _, _, _, arg = dr.while_loop((*pix.start(), dr.full(T.Float, math.inf, pix.n), dr.full(T.UInt32, _NONE, pix.n)),
+                                     lambda w, bits, b, a: bits != 0, body, labels=("w", "bits", "best", "arg"))
+    has = arg != _NONE
+    f = dr.select(has, arg, 0)
+    sh = [dr.gather(T.Float, a, f) for a in fc.shade]
+    b, depth = _bary_depth(fc, T, sh, px, py)
+    nr = fc.normal_row
+    n = [b[0] * sh[nr + c] + b[1] * sh[nr + 3 + c] + b[2] * sh[nr + 6 + c] for c in range(3)]
+    norm = _clamp_min(dr.sqrt(_dot(n, n)), 1e-30)
+    chans = b + [depth] + [nc / norm for nc in n]
+    chans = [dr.select(has, c, 0.0) for c in chans] + [dr.select(has, T.Float(f % fc.F), -1.0)]
+    lane = dr.arange(T.UInt32, nch * fc.B * H * W)
+    p, ch = lane // nch, lane % nch
+    out = dr.zeros(T.Float, nch * fc.B * H * W)
+    for c in range(nch):
+        out = dr.select(ch == c, dr.gather(T.Float, pix.to_image(chans[c]), p), out)
+    return out, fc.B

@@ -54,9 +54,16 @@ class TorchBackend:
     def index_range(self, t):
         return int(t.min()), int(t.max())
 
-    def render(self, settings, verts, faces, camera, colors, per_face):
+    def render(self, settings, verts, faces, camera, colors, per_face, texture=None):
         faces = faces.to(verts.device)
-        return raster.render(settings, camera, verts, faces, colors, per_face)
+        if texture is not None:
+            tex, uv, uvf = texture
+            texture = (tex.to(verts.device), uv.to(verts.device), uvf.to(verts.device))
+        return raster.render(settings, camera, verts, faces, colors, per_face, texture)
+
+    def rasterize(self, settings, verts, faces, camera):
+        """(face_id int64, bary, depth, normal) tensors, see gendr.GBuffer."""
+        return raster.rasterize(settings, camera, verts, faces.to(verts.device))
 
     def to_numpy(self, image):
         return image.detach().cpu().numpy()

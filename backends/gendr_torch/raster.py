@@ -77,9 +77,16 @@ class Faces:
     box: torch.Tensor  # [4, B·F] float: Xmin, Xmax, Ymin, Ymax of the polygon (screen units)
     valid: torch.Tensor  # [B·F] bool: some part in front of the near plane
     front: torch.Tensor  # [B·F] bool: counter-clockwise on screen
-    shade: torch.Tensor | None  # [21, B·F]: barycentric affine coeffs (9), view depths (3), colours (9)
+    shade: torch.Tensor | None  # [21 (+6 uv) (+9 normals), B·F]: barycentric affine coeffs (9), view
+    #                              depths (3), colours (9); with a texture the corners' u (3), v (3);
+    #                              for the G-buffer the corners' unit normals (3 × xyz)
     near: float
     far: float
+    tex: torch.Tensor | None = None  # [Bt, Ht, Wt, C] texture (Bt = 1 or B)
+    normal_row: int = 21  # first row of the normals in shade
+
+
+UV_ROW = 21  # first row of the corners' texture coordinates in Faces.shade
 
 
 def _screen(camera, P, H, W, xv, yv, zv):
@@ -97,7 +104,9 @@ def _expand_b(t, B):
     return t.expand(B, *t.shape[1:]) if t.shape[0] != B else t
 
 
-def prepare_faces(settings, camera, verts, faces, colors, per_face) -> Faces:
+def prepare_faces(settings, camera, verts, faces, colors, per_face, texture=None, normals=False) -> Faces:
+    """``texture``: (texture, uvs, uv_faces) tensors or None; ``normals``: append the corners' unit
+    normals to the shading data (G-buffer; also computes it without a blend)."""
     H, W = settings.image_size
     dtype, device = verts.dtype, verts.device
     P, Bc = camera_tensors(camera, dtype, device)
@@ -142,10 +151,13 @@ def prepare_faces(settings, camera, verts, faces, colors, per_face) -> Faces:
     with torch.no_grad():
         box = torch.stack([X.amin(-1), X.amax(-1), Y.amin(-1), Y.amax(-1)], 0)
         area2 = (X * Y.roll(-1, 1) - X.roll(-1, 1) * Y).sum(-1)  # twice the signed area
-    shade = None
-    if settings.blend is not None:
-        shade = _shading_data(settings, camera, P, H, W, verts, faces, tri, colors, per_face, B)
-    return Faces(B, F, K, X, Y, box, valid.reshape(-1), area2 > 0, shade, camera.near, camera.far)
+    shade = tex = None
+    if settings.blend is not None or normals:
+        shade = _shading_data(settings, camera, P, H, W, verts, faces, tri, colors, per_face, B, texture, normals)
+    if texture is not None:
+        tex = texture[0] if texture[0].ndim == 4 else texture[0][None]
+    return Faces(B, F, K, X, Y, box, valid.reshape(-1), area2 > 0, shade, camera.near, camera.far, tex,
+                 UV_ROW + (6 if texture is not None else 0))
 
 
 def edge_table(X, Y):
@@ -168,8 +180,10 @@ def edge_table(X, Y):
     return torch.stack([X, Y, Ex, Ey, inv_len2, nx, ny, c], -1).reshape(N, 8 * K)
 
 
-def _shading_data(settings, camera, P, H, W, verts, faces, tri, colors, per_face, B):
-    """Barycentric coefficients (affine in screen X, Y), view depths and lit corner colours."""
+def _shading_data(settings, camera, P, H, W, verts, faces, tri, colors, per_face, B, texture=None, normals_out=False):
+    """Barycentric coefficients (affine in screen X, Y), view depths and lit corner colours (with a
+    texture: the lighting factor alone, then the corners' uvs); with ``normals_out`` the corners'
+    unit normals (rows: see Faces.shade)."""
     sx, sy, ox, oy = camera.ndc_affine(ops, P, H, W)
     sx, sy, ox, oy = (torch.as_tensor(v, dtype=tri.dtype, device=tri.device) for v in (sx, sy, ox, oy))
     sx, sy, ox, oy = (v.reshape(-1, 1, 1) for v in (sx, sy, ox, oy))  # [Bc|1, 1, 1]
@@ -226,8 +240,15 @@ def _shading_data(settings, camera, P, H, W, verts, faces, tri, colors, per_face
     ndl = torch.where(ndl.detach().abs() <= LAMBERT_KINK_ULPS * torch.finfo(ndl.dtype).eps, ndl - ndl.detach(), ndl)
     lambert = torch.clamp(ndl, min=0.0)
     color = albedo * (settings.ambient + settings.diffuse * lambert)  # [B, F, 3 corners, 3 rgb]
-    shade = torch.cat([a, b, c0, depth, color.reshape(B, -1, 9)], -1)  # [B, F, 21]
-    return shade.reshape(B * tri.shape[1], 21).t()
+    parts = [a, b, c0, depth, color.reshape(B, -1, 9)]  # [B, F, 21]
+    if texture is not None:
+        uv, uv_faces = texture[1], texture[2]
+        uv = (uv if uv.ndim == 3 else uv[None]).expand(B, -1, -1)[:, uv_faces]  # [B, F, 3 corners, 2]
+        parts += [uv[..., 0], uv[..., 1]]
+    if normals_out:
+        parts.append(normals.reshape(B, -1, 9))
+    shade = torch.cat(parts, -1)
+    return shade.reshape(B * tri.shape[1], shade.shape[-1]).t()
 
 
 # ---------------------------------------------------------------------------------------------
@@ -630,8 +651,9 @@ def learnable_tensors(tconorm, dtype, device):
     return out
 
 
-def rgb_band(plan, X, Y, shade, tau, band):
-    """RGB of the image rows of plan.bands()[band] by plain autograd: [B, r1 − r0, W, 3]."""
+def rgb_band(plan, X, Y, shade, tau, band, tex=None):
+    """RGB of the image rows of plan.bands()[band] by plain autograd: [B, r1 − r0, W, 3]. (``tex``:
+    fc.tex, an argument so that checkpointing sees it as an input.)"""
     s, fc = plan.settings, plan.fc
     W = s.image_size[1]
     r0, r1, blk = plan.bands()[band]
@@ -657,19 +679,31 @@ def _lowest_face(win, face, pix, npix):
     return win & (key == low[pix.long()])
 
 
-def _blend(settings, fc, sh, pix, npix, px, py, p, inside, face):
-    dtype, device = px.dtype, px.device
-    pix = pix.long()  # scatter_reduce needs int64 indices
+def _bary_depth(sh, px, py, near):
+    """Perspective-correct barycentrics (clamped to the triangle, a list of 3) and view depth of the
+    pairs' faces (shading rows ``sh``) at screen points (px, py)."""
     u = [sh[i] * px + sh[3 + i] * py + sh[6 + i] for i in range(3)]
     s = u[0] + u[1] + u[2]
-    s = torch.where(s.abs() > torch.finfo(dtype).tiny, s, torch.ones_like(s))
+    s = torch.where(s.abs() > torch.finfo(px.dtype).tiny, s, torch.ones_like(s))
     b = [torch.clamp(ui / s, min=0.0) for ui in u]
     bs = b[0] + b[1] + b[2]
     b = [bi / bs for bi in b]
     # a near-clipped face extrapolates towards its corner behind the camera: clamp to the near plane
-    depth = torch.clamp(b[0] * sh[9] + b[1] * sh[10] + b[2] * sh[11], min=fc.near)
+    depth = torch.clamp(b[0] * sh[9] + b[1] * sh[10] + b[2] * sh[11], min=near)
+    return b, depth
+
+
+def _blend(settings, fc, sh, pix, npix, px, py, p, inside, face):
+    dtype, device = px.dtype, px.device
+    pix = pix.long()  # scatter_reduce needs int64 indices
+    b, depth = _bary_depth(sh, px, py, fc.near)
     col = torch.stack([b[0] * sh[12 + c] + b[1] * sh[15 + c] + b[2] * sh[18 + c] for c in range(3)], 1)
     bg = torch.as_tensor(settings.background, dtype=dtype, device=device)
+    if fc.tex is not None:
+        if settings.blend == "hard":  # sample only where a face wins (below)
+            col = _TexturedColour(settings, fc, sh, b, face, col)
+        else:
+            col = col * _texel(settings, fc, sh, b, face)
     if settings.blend == "hard":  # purely geometric: the nearest face containing the pixel centre
         use = inside & fc.front[face] if settings.cull_backfaces else inside
         key = torch.where(use, depth.detach(), torch.full_like(depth, math.inf))
@@ -695,9 +729,51 @@ def _blend(settings, fc, sh, pix, npix, px, py, p, inside, face):
     return (num + wb[:, None] * bg) / den[:, None]
 
 
-def render(settings, camera, verts, faces, colors, per_face):
+class _TexturedColour:
+    """The textured colours of a block's pairs, sampled only for the selected ones (``col[sel]``)."""
+
+    def __init__(self, settings, fc, sh, b, face, lit):
+        self.args, self.lit = (settings, fc, sh, b, face), lit
+
+    def __getitem__(self, sel):
+        settings, fc, sh, b, face = self.args
+        return self.lit[sel] * _texel(settings, fc, sh[:, sel], [bi[sel] for bi in b], face[sel])
+
+
+def _texel(settings, fc, sh, b, face):
+    """The texture sampled at the pairs' interpolated uvs: [N, 3] (gendr.textures conventions)."""
+    tex = fc.tex
+    Bt, Ht, Wt, C = tex.shape
+    u = b[0] * sh[UV_ROW] + b[1] * sh[UV_ROW + 1] + b[2] * sh[UV_ROW + 2]
+    v = b[0] * sh[UV_ROW + 3] + b[1] * sh[UV_ROW + 4] + b[2] * sh[UV_ROW + 5]
+    flat = tex[..., :3].reshape(-1, 3)
+    base = (face // fc.F) * (Ht * Wt) if Bt > 1 else torch.zeros_like(face)
+    repeat = settings.texture_wrap == "repeat"
+
+    def wrap(i, n):  # float integer-valued indices -> int64 in [0, n)
+        i = i - n * torch.floor(i / n) if repeat else torch.clamp(i, 0, n - 1)
+        return i.long()
+
+    def at(r, c):
+        return flat.index_select(0, base + r * Wt + c)
+
+    if settings.texture_filter == "nearest":
+        with torch.no_grad():
+            r, c = wrap(torch.floor((1.0 - v) * Ht), Ht), wrap(torch.floor(u * Wt), Wt)
+        return at(r, c)
+    x, y = u * Wt - 0.5, (1.0 - v) * Ht - 0.5
+    x0, y0 = torch.floor(x.detach()), torch.floor(y.detach())
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    with torch.no_grad():
+        c0, c1, r0, r1 = wrap(x0, Wt), wrap(x0 + 1, Wt), wrap(y0, Ht), wrap(y0 + 1, Ht)
+    top = torch.lerp(at(r0, c0), at(r0, c1), fx)
+    bot = torch.lerp(at(r1, c0), at(r1, c1), fx)
+    return torch.lerp(top, bot, fy)
+
+
+def render(settings, camera, verts, faces, colors, per_face, texture=None):
     H, W = settings.image_size
-    fc = prepare_faces(settings, camera, verts, faces, colors, per_face)
+    fc = prepare_faces(settings, camera, verts, faces, colors, per_face, texture)
     tau = settings.tau
     tau = tau.to(verts.dtype) if isinstance(tau, torch.Tensor) else torch.tensor(float(tau), dtype=verts.dtype, device=verts.device)
     radius = settings.culling_distance(settings.tau_value)
@@ -706,14 +782,56 @@ def render(settings, camera, verts, faces, colors, per_face):
     alpha = SoftAlpha.apply(fc.X, fc.Y, tau, plan, *learnable_tensors(settings.tconorm, verts.dtype, verts.device))
     if fc.shade is None:
         return torch.cat([alpha.new_zeros(*alpha.shape, 3), alpha[..., None]], -1)
-    needs_grad = torch.is_grad_enabled() and any(t.requires_grad for t in (fc.X, fc.shade, tau))
+    needs_grad = torch.is_grad_enabled() and any(t.requires_grad for t in (fc.X, fc.shade, tau)) or (
+        torch.is_grad_enabled() and fc.tex is not None and fc.tex.requires_grad)
     nb = len(plan.bands())
     parts = []
     for band in range(nb):
         if needs_grad and nb > 1:
-            parts.append(checkpoint(rgb_band, plan, fc.X, fc.Y, fc.shade, tau, band,
+            parts.append(checkpoint(rgb_band, plan, fc.X, fc.Y, fc.shade, tau, band, fc.tex,
                                     use_reentrant=False, preserve_rng_state=False))
         else:
             parts.append(rgb_band(plan, fc.X, fc.Y, fc.shade, tau, band))
     rgb = torch.cat(parts, 1) if len(parts) > 1 else parts[0]
     return torch.cat([rgb, alpha[..., None]], -1)
+
+
+# ---------------------------------------------------------------------------------------------
+# G-buffer
+# ---------------------------------------------------------------------------------------------
+def rasterize(settings, camera, verts, faces):
+    """(face_id [B, H, W] int64, bary [B, H, W, 3], depth [B, H, W], normal [B, H, W, 3]): the
+    nearest face containing each pixel centre (the hard blend's z-buffer), see gendr.GBuffer."""
+    H, W = settings.image_size
+    fc = prepare_faces(settings, camera, verts, faces, None, False, normals=True)
+    B, F, dtype, device = fc.B, fc.F, verts.dtype, verts.device
+    with torch.no_grad():
+        plan = Plan(settings, fc, *pixel_ranges(fc, H, W, 0.0))
+    geom = edge_table(fc.X, fc.Y)
+    parts = []
+    for r0, r1, blk in plan.bands():
+        npix = B * (r1 - r0) * plan.Wc
+        fid = torch.full((npix,), -1, dtype=torch.long, device=device)
+        vals = torch.zeros(npix, 8, dtype=dtype, device=device)  # bary (3), depth, normal (3), unused
+        if blk is not None:
+            d = signed_distance(geom.index_select(0, blk.face), fc.K, blk)
+            face, pix, px, py = blk.flat()
+            pix = pix.long()
+            sh = fc.shade.index_select(1, face)
+            b, depth = _bary_depth(sh, px, py, fc.near)
+            use = (d >= 0).reshape(-1)
+            if settings.cull_backfaces:
+                use = use & fc.front[face]
+            key = torch.where(use, depth.detach(), torch.full_like(depth, math.inf))
+            dmin = torch.full((npix,), math.inf, dtype=dtype, device=device).scatter_reduce(0, pix, key, "amin")
+            win = _lowest_face(use & (key == dmin[pix]), face, pix, npix)
+            nr = fc.normal_row
+            n = [b[0] * sh[nr + c] + b[1] * sh[nr + 3 + c] + b[2] * sh[nr + 6 + c] for c in range(3)]
+            norm = torch.clamp(torch.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]), min=1e-30)
+            row = torch.stack(b + [depth] + [nc / norm for nc in n] + [torch.zeros_like(depth)], 1)
+            vals = vals.index_add(0, pix[win], row[win])
+            fid[pix[win]] = face[win] % F
+        parts.append((fid.view(B, r1 - r0, plan.Wc)[:, :, :W], vals.view(B, r1 - r0, plan.Wc, 8)[:, :, :W]))
+    fid = torch.cat([p[0] for p in parts], 1)
+    vals = torch.cat([p[1] for p in parts], 1)
+    return fid, vals[..., 0:3], vals[..., 3], vals[..., 4:7]

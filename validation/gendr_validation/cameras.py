@@ -176,19 +176,26 @@ def edge_distance(mesh, geom: CameraGeometry, H: int, W: int) -> np.ndarray:
     polys = polys[valid]
     jj, ii = np.meshgrid(np.arange(W) + 0.5, np.arange(H) + 0.5)
     px, py = jj.reshape(-1), ii.reshape(-1)
-    best = np.full(px.shape, np.inf)
-    chunk = max(1, 2_000_000 // (4 * H * W))
-    for s in range(0, len(polys), chunk):
-        P = polys[s:s + chunk]  # [c, 4, 2]
-        A = P
-        B = np.roll(P, -1, axis=1)
-        E = B - A
-        L2 = (E ** 2).sum(-1)  # [c, 4]
-        L2s = np.where(L2 > 0, L2, 1.0)
-        dx = px[None, None, :] - A[..., 0:1]
-        dy = py[None, None, :] - A[..., 1:2]
-        t = np.clip((dx * E[..., 0:1] + dy * E[..., 1:2]) / L2s[..., None], 0.0, 1.0)
-        qx, qy = dx - t * E[..., 0:1], dy - t * E[..., 1:2]
-        d = np.sqrt(qx * qx + qy * qy).min(axis=(0, 1))
-        best = np.minimum(best, d)
-    return best.reshape(H, W)
+    # every edge once: a shared edge appears in two faces, and the repeated 4th corner of a triangle
+    # gives a zero-length edge (its point is an endpoint of the neighbouring edges)
+    A = polys.reshape(-1, 2)
+    B = np.roll(polys, -1, axis=1).reshape(-1, 2)
+    keep = np.any(A != B, axis=1)
+    seg = np.concatenate([A[keep], B[keep]], 1)
+    swap = (seg[:, 0] > seg[:, 2]) | ((seg[:, 0] == seg[:, 2]) & (seg[:, 1] > seg[:, 3]))
+    seg[swap] = seg[swap][:, [2, 3, 0, 1]]
+    seg = np.unique(seg, axis=0)
+    if len(seg) == 0:  # only zero-area faces collapsed to points
+        seg = np.concatenate([A, A], 1)
+    best = np.full(px.shape, np.inf)  # squared distances
+    chunk = max(1, 2_000_000 // (H * W))
+    for s in range(0, len(seg), chunk):
+        S = seg[s:s + chunk]
+        Ex, Ey = (S[:, 2] - S[:, 0])[:, None], (S[:, 3] - S[:, 1])[:, None]
+        L2 = Ex * Ex + Ey * Ey
+        dx = px[None, :] - S[:, 0:1]
+        dy = py[None, :] - S[:, 1:2]
+        t = np.clip((dx * Ex + dy * Ey) / np.where(L2 > 0, L2, 1.0), 0.0, 1.0)
+        qx, qy = dx - t * Ex, dy - t * Ey
+        best = np.minimum(best, (qx * qx + qy * qy).min(axis=0))
+    return np.sqrt(best).reshape(H, W)

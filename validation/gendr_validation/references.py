@@ -106,10 +106,9 @@ class PyrenderReference(Reference):
             self._renderers[(H, W)] = r
         return r
 
-    def render(self, mesh, camera, H, W):
+    def _camera(self, verts, camera, H, W):
         pr = self.pyrender
         g = camera_geometry(camera)
-        verts = mesh.vertices
         far = max(g.far, FAR_MIN)
         if g.kind == "perspective":
             cam = pr.PerspectiveCamera(yfov=math.radians(g.fov_y), aspectRatio=W / H, znear=g.near, zfar=far)
@@ -119,9 +118,41 @@ class PyrenderReference(Reference):
             # pyrender renders with xmag = ymag·W/H whatever xmag says: stretch the scene instead
             verts = stretch_along(verts, g.eye, g.right, (g.ymag * W / H) / g.xmag)
             cam = pr.OrthographicCamera(xmag=g.ymag * W / H, ymag=g.ymag, znear=g.near, zfar=far)
-        material = pr.MetallicRoughnessMaterial(doubleSided=True, baseColorFactor=(1.0, 1.0, 1.0, 1.0))
-        prim = pr.Primitive(positions=verts.astype(np.float32), indices=mesh.faces.astype(np.uint32),
-                            material=material, mode=pr.constants.GLTF.TRIANGLES)
+        return g, far, cam, verts
+
+    def render(self, mesh, camera, H, W):
+        mask, depth, _ = self._render(mesh, camera, H, W)
+        return mask, depth
+
+    def render_textured(self, mesh, camera, H, W, filter="bilinear", wrap="repeat"):
+        """(mask [H, W] bool, rgb [H, W, 3] float64 in [0, 1], 8-bit): the unlit texture colour of a
+        :class:`gendr.scenes.TexturedMesh` (FLAT shading = base colour × texture, no sRGB
+        conversion), sampled by OpenGL with ``filter`` (no mip-maps) and ``wrap``."""
+        mask, _, rgb = self._render(mesh, camera, H, W, texture=(filter, wrap))
+        return mask, rgb
+
+    def _render(self, mesh, camera, H, W, texture=None):
+        pr = self.pyrender
+        g, far, cam, verts = self._camera(mesh.vertices, camera, H, W)
+        extra = {}
+        if texture is None:
+            material = pr.MetallicRoughnessMaterial(doubleSided=True, baseColorFactor=(1.0, 1.0, 1.0, 1.0))
+            positions, indices = verts, mesh.faces
+        else:
+            from OpenGL import GL
+            flt = GL.GL_LINEAR if texture[0] == "bilinear" else GL.GL_NEAREST
+            wrp = GL.GL_REPEAT if texture[1] == "repeat" else GL.GL_CLAMP_TO_EDGE
+            img = np.round(np.clip(mesh.texture[..., :3], 0, 1) * 255).astype(np.uint8)
+            tex = pr.Texture(source=img, source_channels="RGB",
+                             sampler=pr.Sampler(magFilter=flt, minFilter=flt, wrapS=wrp, wrapT=wrp))
+            material = pr.MetallicRoughnessMaterial(doubleSided=True, baseColorFactor=(1.0, 1.0, 1.0, 1.0),
+                                                    baseColorTexture=tex)
+            # one vertex per face corner: uvs are indexed per corner (pyrender uploads the image
+            # flipped, so OBJ-convention v = 1 is the image's first row, as in gendr)
+            positions, indices = verts[mesh.faces].reshape(-1, 3), np.arange(3 * mesh.num_faces).reshape(-1, 3)
+            extra["texcoord_0"] = mesh.corner_uvs().reshape(-1, 2).astype(np.float32)
+        prim = pr.Primitive(positions=positions.astype(np.float32), indices=indices.astype(np.uint32),
+                            material=material, mode=pr.constants.GLTF.TRIANGLES, **extra)
         scene = pr.Scene(bg_color=(0.0, 0.0, 0.0, 0.0), ambient_light=(1.0, 1.0, 1.0))
         scene.add(pr.Mesh([prim]))
         scene.add(cam, pose=g.pose)
@@ -133,8 +164,9 @@ class PyrenderReference(Reference):
         try:
             # not DEPTH_ONLY: pyrender's depth-only pass always culls back faces (renderer.py ignores
             # doubleSided there), which hides open meshes' insides and near-clipped interiors
-            _, depth = r.render(scene, flags=pr.RenderFlags.FLAT | pr.RenderFlags.SKIP_CULL_FACES)
+            color, depth = r.render(scene, flags=pr.RenderFlags.FLAT | pr.RenderFlags.SKIP_CULL_FACES)
             depth = np.array(depth, dtype=np.float64)
+            rgb = np.asarray(color, dtype=np.float64)[..., :3] / 255.0
         finally:
             prr.glRenderbufferStorageMultisample = original
         mask = depth > 0
@@ -143,7 +175,7 @@ class PyrenderReference(Reference):
             n, f = g.near, far
             zn = np.where(mask, (f + n - 2 * n * f / np.where(mask, depth, 1.0)) / (f - n), 0.0)
             depth = np.where(mask, n + (zn + 1) / 2 * (f - n), 0.0)
-        return mask, depth
+        return mask, depth, rgb
 
     def close(self):
         for r in self._renderers.values():
@@ -184,6 +216,19 @@ class MitsubaReference(Reference):
         self.mi = _import_mitsuba(variant)
 
     def render(self, mesh, camera, H, W):
+        a = self.render_aovs(mesh, camera, H, W)
+        return a["mask"], a["depth"]
+
+    def render_textured(self, mesh, camera, H, W, filter="bilinear", wrap="repeat"):
+        """(mask, rgb [H, W, 3] float64): the texture colour of a :class:`gendr.scenes.TexturedMesh`
+        at each pixel centre (the ``albedo`` AOV of a diffuse BSDF with a raw float ``bitmap``
+        texture, ``filter_type`` = ``filter``, ``wrap_mode`` = ``wrap``)."""
+        a = self.render_aovs(mesh, camera, H, W, texture=(filter, wrap))
+        return a["mask"], a["albedo"]
+
+    def render_aovs(self, mesh, camera, H, W, texture=None):
+        """{"mask", "depth", "face_id" (Mitsuba's prim_index AOV; −1 where empty)} (+ "albedo" with
+        a texture) at the pixel centres."""
         mi = self.mi
         mi.set_variant(self.variant)  # another reference may have switched it
         g = camera_geometry(camera)
@@ -207,20 +252,37 @@ class MitsubaReference(Reference):
                       sampler={"type": "stratified", "sample_count": 1, "jitter": False},
                       film={"type": "hdrfilm", "width": W, "height": H, "rfilter": {"type": "box"},
                             "pixel_format": "rgba", "sample_border": False})
-        m = mi.Mesh("m", len(verts), len(mesh.faces))
+        llvm = "llvm" in self.variant
+        faces = mesh.faces
+        props = mi.Properties()
+        if texture is not None:
+            # one vertex per face corner (uvs are indexed per corner); Mitsuba's uv has v down
+            # (its OBJ loader stores 1 − v), so row 0 of the bitmap is v = 1 as in gendr
+            verts, faces = verts[faces].reshape(-1, 3), np.arange(3 * len(faces)).reshape(-1, 3)
+            bmp = mi.Bitmap(np.ascontiguousarray(mesh.texture[..., :3], dtype=np.float32))
+            props["bsdf"] = mi.load_dict({"type": "diffuse", "reflectance": {
+                "type": "bitmap", "bitmap": bmp, "raw": True, "filter_type": texture[0], "wrap_mode": texture[1]}})
+        m = mi.Mesh("m", len(verts), len(faces), props=props, has_vertex_texcoords=texture is not None)
         params = mi.traverse(m)
-        params["vertex_positions"] = mi.Float(verts.astype(np.float32).reshape(-1)) if "llvm" in self.variant \
+        params["vertex_positions"] = mi.Float(verts.astype(np.float32).reshape(-1)) if llvm \
             else verts.astype(np.float32).reshape(-1)
-        params["faces"] = mi.UInt32(mesh.faces.astype(np.uint32).reshape(-1)) if "llvm" in self.variant \
-            else mesh.faces.astype(np.uint32).reshape(-1)
+        params["faces"] = mi.UInt32(faces.astype(np.uint32).reshape(-1)) if llvm else faces.astype(np.uint32).reshape(-1)
+        if texture is not None:
+            uv = mesh.corner_uvs().reshape(-1, 2) * np.array([1.0, -1.0]) + np.array([0.0, 1.0])
+            uv = uv.astype(np.float32).reshape(-1)
+            params["vertex_texcoords"] = mi.Float(uv) if llvm else uv
         params.update()
-        scene = mi.load_dict({"type": "scene", "integrator": {"type": "aov", "aovs": "p:position", "inner": {"type": "depth"}},
+        aovs = "p:position,pi:prim_index" + (",a:albedo" if texture is not None else "")
+        scene = mi.load_dict({"type": "scene", "integrator": {"type": "aov", "aovs": aovs, "inner": {"type": "depth"}},
                               "sensor": sensor, "shape": m})
-        img = np.array(mi.render(scene, spp=1), dtype=np.float64)  # [H, W, 4 + 3]: RGBA, position
+        img = np.array(mi.render(scene, spp=1), dtype=np.float64)  # [H, W, 4 + 3 + 1 (+ 3)]
         mask = img[..., 3] > 0.5
         pos = img[..., 4:7]
-        depth = np.where(mask, -g.view(pos)[..., 2], 0.0)
-        return mask, depth
+        out = {"mask": mask, "depth": np.where(mask, -g.view(pos)[..., 2], 0.0),
+               "face_id": np.where(mask, np.round(img[..., 7]), -1).astype(np.int64)}
+        if texture is not None:
+            out["albedo"] = np.where(mask[..., None], img[..., 8:11], 0.0)
+        return out
 
 
 REFERENCES = {

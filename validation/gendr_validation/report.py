@@ -21,7 +21,7 @@ from tqdm import tqdm
 import gendr
 from gendr import scenes as gscenes
 
-from . import gradcheck, hardlimit
+from . import gradcheck, hardlimit, surfaces
 
 QUICK_SCENES = ("icosphere", "cube", "torus", "thin_shape", "teapot_like", "open_mesh", "degenerate_mesh")
 QUICK_SIZE = (48, 64)
@@ -182,6 +182,17 @@ def _run(backends, instances, scenes, quick, outdir, references, limit_instances
                                                            bar.update))
     t_hl = time.perf_counter() - t0
 
+    # --- G-buffers (the hard-limit scenes and cameras) and textures ----------------------------
+    t0 = time.perf_counter()
+    gbuf = [r for c in checks for r in surfaces.check_gbuffer(c.scene, meshes[c.scene], c.camera, cams_all[c.camera],
+                                                              H, W, bnames, refs, c.refs, c.edist)]
+    t_gb = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    tex_cams = [c for c in cam_names if c in surfaces.TEXTURED_QUICK_CAMERAS] if quick else cam_names
+    tex = [r for name in gscenes.TEXTURED_SCENES for cn in tex_cams
+           for r in surfaces.check_textures(name, gscenes.get_textured_scene(name), cn, cams_all[cn], H, W, bnames, refs)]
+    t_tex = time.perf_counter() - t0
+
     # --- gradients -----------------------------------------------------------------------------
     grad_results, grad_images = [], {}
     gb = [b for b in bnames if b in gradcheck.ADAPTERS]
@@ -245,11 +256,24 @@ def _run(backends, instances, scenes, quick, outdir, references, limit_instances
             "rows": [asdict(r) | {"passed": r.passed} for r in grad_results], "backend_parity": parity,
             "seconds": t_grad,
             "note": "param p: the T-conorm parameter (learnable p), checked on parametric instances except hamacher(p=0)"},
+        "textures": {
+            "checks": len(tex), "failed": sum(not r.passed for r in tex),
+            "differ_total": sum(max(r.differ, 0) for r in tex), "tolerance": {f"{k[0]}/{k[1]}": v for k, v in surfaces.TOLERANCE.items()},
+            "texel_ambiguity": surfaces.TEXEL_AMBIGUITY, "rows": [asdict(r) | {"passed": r.passed} for r in tex],
+            "seconds": t_tex},
+        "gbuffer": {
+            "checks": len(gbuf), "failed": sum(not r.passed for r in gbuf), "depth_rtol": surfaces.DEPTH_RTOL,
+            "mask_differ_total": sum(max(r.mask_differ, 0) for r in gbuf),
+            "depth_differ_total": sum(max(r.depth_differ, 0) for r in gbuf),
+            "face_id_differ_total": sum(max(r.face_id_differ, 0) for r in gbuf),
+            "depth_max_rel": max([r.depth_max_rel for r in gbuf if not r.error], default=0.0),
+            "rows": [asdict(r) | {"passed": r.passed} for r in gbuf], "seconds": t_gb},
         "notes": notes,
     }
     summary["gradients"]["parity_failed"] = sum(not r["passed"] for r in parity)
     summary["passed"] = (summary["hard_limit"]["failed"] == 0 and summary["gradients"]["failed"] == 0
-                         and summary["gradients"]["parity_failed"] == 0 and bool(bnames) and bool(refs))
+                         and summary["gradients"]["parity_failed"] == 0 and bool(bnames) and bool(refs)
+                         and summary["textures"]["failed"] == 0 and summary["gbuffer"]["failed"] == 0)
     summary["seconds"] = time.perf_counter() - t_start
     with open(os.path.join(outdir, "summary.json"), "w") as f:
         json.dump(summary, f, indent=1, default=float)
@@ -341,7 +365,34 @@ vs each reference, pixel by pixel. Pixels whose centre lies within δ of a proje
             out.append(f"<tr><td>{r['instance']}</td><td>{e(r['name'])}</td><td>{e(r['backends'])}</td><td>{r['max_abs_diff']:.2e} "
                        f"{ok(r['passed'])} {e(r.get('error', ''))}</td></tr>")
         out.append("</table>")
-    out.append("</body></html>")
+    tx = summary["textures"]
+    out.append(f"""<h2>3. Textures vs references</h2>
+<p>Hard-blend RGB of the textured built-in scenes, unlit (the colour is the sampled texture), vs Mitsuba's
+albedo AOV and pyrender's FLAT shading with the same texture, filter and wrap. Compared: unambiguous pixels
+both cover (edges as in §1; for nearest also texel coordinates within {e(json.dumps(tx['texel_ambiguity']))}
+texels of a texel boundary). Tolerance max |Δrgb| per reference/filter: {e(json.dumps(tx['tolerance']))}.
+{tx['checks']} comparisons, {tx['failed']} failed, {tx['differ_total']} pixels beyond tolerance.</p>
+<table><tr><th>scene</th><th>camera</th><th>backend</th><th>reference</th><th>filter</th><th>compared px</th>
+<th>ambiguous px</th><th>differing px</th><th>max |Δrgb|</th><th>tolerance</th><th></th></tr>""")
+    for r in tx["rows"]:
+        out.append(f"<tr><td>{e(r['scene'])}</td><td>{e(r['camera'])}</td><td>{e(r['backend'])}</td><td>{e(r['reference'])}</td>"
+                   f"<td>{e(r['filter'])}</td><td>{r['compared']}</td><td>{r['ambiguous']}</td><td>{r['differ']}</td>"
+                   f"<td>{r['max_abs_diff']:.1e}</td><td>{r['tolerance']:.1e}</td><td>{ok(r['passed'])} {e(r['error'])}</td></tr>")
+    gb = summary["gbuffer"]
+    out.append(f"""</table><h2>4. G-buffers vs references</h2>
+<p><code>Renderer.rasterize</code> on the scenes and cameras of §1: mask (face_id &ge; 0) vs the reference mask,
+view depth vs the reference depth (relative tolerance {gb['depth_rtol']:g}), face ids vs Mitsuba's prim_index AOV
+(exact), on unambiguous pixels. {gb['checks']} comparisons, {gb['failed']} failed; differing pixels: mask
+{gb['mask_differ_total']}, depth {gb['depth_differ_total']}, face id {gb['face_id_differ_total']}; max relative
+depth difference {gb['depth_max_rel']:.1e}.</p>
+<table><tr><th>scene</th><th>camera</th><th>backend</th><th>reference</th><th>mask differ</th><th>depth differ</th>
+<th>max rel. depth diff</th><th>face id differ</th><th>ambiguous px</th><th></th></tr>""")
+    for r in gb["rows"]:
+        out.append(f"<tr><td>{e(r['scene'])}</td><td>{e(r['camera'])}</td><td>{e(r['backend'])}</td><td>{e(r['reference'])}</td>"
+                   f"<td>{r['mask_differ']}</td><td>{r['depth_differ']}</td><td>{r['depth_max_rel']:.1e}</td>"
+                   f"<td>{'n/a' if r['face_id_differ'] < 0 and not r['error'] else r['face_id_differ']}</td><td>{r['ambiguous']}</td>"
+                   f"<td>{ok(r['passed'])} {e(r['error'])}</td></tr>")
+    out.append("</table></body></html>")
     return "\n".join(out)
 
 
@@ -371,6 +422,21 @@ def print_summary(s, stream=None):
         w(f"    FAIL {r['backend']} #{r['instance']} {r['name']} d/{r['param']}: pixel max {r['pixel_max']:.1e}, loss err {r['loss_err']:.1e}\n")
     if len(bad) > 8:
         w(f"    ... {len(bad) - 8} more failures in summary.json\n")
+    tx, gb = s.get("textures"), s.get("gbuffer")
+    if tx is not None:
+        mx = max([r["max_abs_diff"] for r in tx["rows"] if not r["error"]], default=0.0)
+        w(f"  textures: {tx['checks'] - tx['failed']}/{tx['checks']} comparisons pass; pixels beyond tolerance: "
+          f"{tx['differ_total']}; max |drgb| {mx:.1e}; {tx['seconds']:.1f}s\n")
+        for r in [r for r in tx["rows"] if not r["passed"]][:5]:
+            w(f"    FAIL {r['scene']}/{r['camera']}/{r['backend']} vs {r['reference']} {r['filter']}: {r['differ']} px "
+              f"(max {r['max_abs_diff']:.1e}) {r['error'][:150]}\n")
+    if gb is not None:
+        w(f"  G-buffer: {gb['checks'] - gb['failed']}/{gb['checks']} comparisons pass; differing px: mask "
+          f"{gb['mask_differ_total']}, depth {gb['depth_differ_total']}, face id {gb['face_id_differ_total']}; "
+          f"max rel. depth diff {gb['depth_max_rel']:.1e}; {gb['seconds']:.1f}s\n")
+        for r in [r for r in gb["rows"] if not r["passed"]][:5]:
+            w(f"    FAIL {r['scene']}/{r['camera']}/{r['backend']} vs {r['reference']}: mask {r['mask_differ']}, depth "
+              f"{r['depth_differ']}, face id {r['face_id_differ']} {r['error'][:150]}\n")
     for n in s["notes"]:
         w(f"  note: {n}\n")
     w(f"  {'PASSED' if s['passed'] else 'FAILED'} in {s['seconds']:.1f}s\n")
