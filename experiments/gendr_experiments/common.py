@@ -237,18 +237,10 @@ def flatten_loss(vertices: torch.Tensor, edges, eps: float = 1e-6) -> torch.Tens
 # ------------------------------------------------------------------------------------------------
 
 def axis_angle_to_matrix(w: torch.Tensor) -> torch.Tensor:
-    """Rodrigues: rotation vector ``w`` [3] (axis · angle in radians) -> ``[3, 3]``; smooth at 0."""
-    theta2 = (w * w).sum()
-    theta = torch.sqrt(theta2 + 1e-24)
-    K = torch.zeros(3, 3, dtype=w.dtype, device=w.device)
-    K = torch.stack([torch.stack([0 * w[0], -w[2], w[1]]),
-                     torch.stack([w[2], 0 * w[0], -w[0]]),
-                     torch.stack([-w[1], w[0], 0 * w[0]])])
-    small = theta2 < 1e-8
-    a = torch.where(small, 1 - theta2 / 6, torch.sin(theta) / theta)
-    b = torch.where(small, 0.5 - theta2 / 24, (1 - torch.cos(theta)) / (theta2 + 1e-24))
-    eye = torch.eye(3, dtype=w.dtype, device=w.device)
-    return eye + a * K + b * (K @ K)
+    """Rotation vector ``w`` [3] (axis · angle in radians) -> ``[3, 3]`` (kornia's Rodrigues; its
+    first-order branch near 0 keeps the gradient at ω = 0 finite)."""
+    from kornia.geometry.conversions import axis_angle_to_rotation_matrix
+    return axis_angle_to_rotation_matrix(w.reshape(1, 3))[0]
 
 
 def rotation_angle_deg(Ra, Rb) -> float:
@@ -261,13 +253,11 @@ def rotation_angle_deg(Ra, Rb) -> float:
 
 
 def random_rotation(rng: np.random.Generator) -> np.ndarray:
-    """A uniformly distributed rotation matrix (from a random unit quaternion)."""
+    """A uniformly distributed rotation matrix (from a random unit quaternion w, x, y, z)."""
+    from kornia.geometry.conversions import quaternion_to_rotation_matrix
     q = rng.normal(size=4)
     q /= np.linalg.norm(q)
-    w, x, y, z = q
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    return quaternion_to_rotation_matrix(torch.tensor(q[None], dtype=torch.float64))[0].numpy()
 
 
 def rotation_about(axis, degrees: float) -> np.ndarray:
