@@ -325,15 +325,18 @@ def source_hash(backend: str = "torch") -> str:
 
 @lru_cache(maxsize=1)
 def git_commit() -> str | None:
-    """The git commit of the checkout gendr runs from (``+dirty`` with uncommitted changes to
-    tracked files), or None outside a git checkout. A convenience beside :func:`source_hash`, which
+    """The git commit of the checkout gendr runs from (``+dirty`` with uncommitted changes to the
+    tracked code of gendr, the backends or the experiments), or None outside a git checkout. A convenience beside :func:`source_hash`, which
     is what resume and verify compare."""
     import subprocess
     root = _package_dir("gendr").parent
     try:
         head = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True,
                               timeout=10, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+        # dirty = uncommitted changes to the code source_hash covers (results files being appended
+        # to by a running sweep are not code)
+        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no", "--",
+                                "gendr", "backends", "experiments/gendr_experiments"],
                                capture_output=True, text=True, timeout=10, check=True).stdout.strip()
     except (OSError, subprocess.SubprocessError):
         return None
