@@ -247,26 +247,11 @@ class Renderer:
 
         Returns [B, H, W, 4] in the vertices' dtype: RGB, then alpha (the aggregated coverage).
         """
-        if not isinstance(camera, Camera):
-            raise ParameterError(f"camera must be a gendr camera (PerspectiveCamera, ...), got {type(camera).__name__}")
         if vertex_colors is not None and face_colors is not None:
             raise ParameterError("give vertex_colors or face_colors, not both")
         be = self.backend
-        verts = be.float_array(vertices, "vertices")
-        faces_a = be.index_array(faces, "faces")
-        vshape = tuple(verts.shape)
-        if len(vshape) not in (2, 3) or vshape[-1] != 3 or vshape[-2] < 1:
-            raise ShapeError(f"vertices must have shape [B, V, 3] or [V, 3], got {list(vshape)}")
-        if len(faces_a.shape) != 2 or faces_a.shape[1] != 3:
-            raise ShapeError(f"faces must have shape [F, 3], got {list(faces_a.shape)}")
-        V = vshape[-2]
-        bad = be.first_nonfinite(verts)
-        if bad is not None:
-            raise InputValueError(f"vertices must be finite; vertices{list(bad[0])} = {bad[1]}")
-        if faces_a.shape[0] > 0:
-            lo, hi = be.index_range(faces_a)
-            if lo < 0 or hi >= V:
-                raise InputValueError(f"face indices must lie in [0, {V - 1}] (V = {V}), got range [{lo}, {hi}]")
+        verts, faces_a = self._mesh_inputs(vertices, faces, camera)
+        V = verts.shape[-2]
         if texture is not None and (vertex_colors is not None or face_colors is not None):
             raise ParameterError("give a texture or vertex_colors/face_colors, not both")
         if texture is None and (uvs is not None or uv_faces is not None):
@@ -299,6 +284,13 @@ class Renderer:
         settings (distribution, τ, eps, blend) play no part. Differentiable w.r.t. vertices and
         camera (bary, depth, normal); face_id is piecewise constant.
         """
+        be = self.backend
+        verts, faces_a = self._mesh_inputs(vertices, faces, camera)
+        return GBuffer(*be.rasterize(self.settings, verts, faces_a, camera))
+
+    def _mesh_inputs(self, vertices, faces, camera):
+        """The backend's arrays of ``vertices`` [B?, V, 3] and ``faces`` [F, 3], checked (shapes,
+        finite vertices, face indices in range, a gendr camera): typed errors naming the bad value."""
         if not isinstance(camera, Camera):
             raise ParameterError(f"camera must be a gendr camera (PerspectiveCamera, ...), got {type(camera).__name__}")
         be = self.backend
@@ -309,15 +301,15 @@ class Renderer:
             raise ShapeError(f"vertices must have shape [B, V, 3] or [V, 3], got {list(vshape)}")
         if len(faces_a.shape) != 2 or faces_a.shape[1] != 3:
             raise ShapeError(f"faces must have shape [F, 3], got {list(faces_a.shape)}")
+        V = vshape[-2]
         bad = be.first_nonfinite(verts)
         if bad is not None:
             raise InputValueError(f"vertices must be finite; vertices{list(bad[0])} = {bad[1]}")
         if faces_a.shape[0] > 0:
             lo, hi = be.index_range(faces_a)
-            if lo < 0 or hi >= vshape[-2]:
-                raise InputValueError(f"face indices must lie in [0, {vshape[-2] - 1}] (V = {vshape[-2]}), "
-                                      f"got range [{lo}, {hi}]")
-        return GBuffer(*be.rasterize(self.settings, verts, faces_a, camera))
+            if lo < 0 or hi >= V:
+                raise InputValueError(f"face indices must lie in [0, {V - 1}] (V = {V}), got range [{lo}, {hi}]")
+        return verts, faces_a
 
     def to_numpy(self, image):
         """The backend's image as a NumPy array (detached)."""
