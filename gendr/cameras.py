@@ -42,7 +42,16 @@ class Orbit:
     """Eye position on a sphere around ``at``: angles in degrees, ``distance`` in world units.
 
     azimuth 0, elevation 0 puts the eye on +Z of ``at``; azimuth turns towards +X, elevation
-    towards +Y. Each value may be a number, a [B] array or a tensor requiring grad.
+    towards +Y. Each value may be a number, a [B] array (NumPy, float) or a scalar / [B] tensor of
+    the render backend (torch CPU/CUDA on the vertices' device, or Dr.Jit); a tensor that requires
+    grad gets a gradient from :meth:`~gendr.Renderer.render`. Used as a camera's ``eye``; see
+    :func:`orbit_camera`.
+
+    >>> import gendr
+    >>> cam = gendr.PerspectiveCamera(eye=gendr.Orbit(azimuth=90.0, elevation=0.0, distance=3.0))
+    >>> [round(float(c), 6) + 0.0 for c in cam.eye_position(gendr.ops.numpy_ops, {"azimuth": 90.0, "elevation": 0.0,
+    ...                                                       "distance": 3.0, "at": (0.0, 0.0, 0.0)})]
+    [3.0, 0.0, 0.0]
     """
 
     azimuth: Any
@@ -100,6 +109,35 @@ class Camera:
     ``near``/``far`` are positive view-space depths. Faces entirely nearer than ``near`` are not
     drawn; faces crossing it are clipped (as OpenGL does). ``far`` only normalises depth for the
     softmax RGB blend (DESIGN.md §3); it does not clip.
+
+    Args (all subclasses; OpenGL convention: the camera looks along its −Z, +Y up, +X right):
+        eye: [3] or [B, 3] camera position in world units, or an :class:`Orbit`.
+        at: [3] or [B, 3] point looked at (world units).
+        up: [3] or [B, 3] up direction (any length > 0; must not be parallel to ``at − eye``).
+        near, far: Python floats, 0 < near < far (world units).
+
+    Array values may be Python numbers/sequences, NumPy arrays (float) or tensors of the render
+    backend (torch CPU/CUDA on the vertices' device, or Dr.Jit arrays; converted to the vertices'
+    dtype at render time). Tensors that require grad get gradients from
+    :meth:`~gendr.Renderer.render` / :meth:`~gendr.Renderer.rasterize`; a batch (B > 1) gives one
+    camera per batch element. ``near``/``far`` are not differentiable.
+
+    Raises: :class:`~gendr.errors.ParameterError` (near/far, lens values out of domain),
+    :class:`~gendr.errors.ShapeError`, :class:`~gendr.errors.InputValueError` (non-finite) and
+    :class:`~gendr.errors.DegenerateCameraError` (see the module docstring); at construction for
+    plain values, at render time for tensors.
+
+    Use a subclass (:class:`PerspectiveCamera`, :class:`OrthographicCamera`,
+    :class:`IntrinsicsCamera`):
+
+    >>> import gendr
+    >>> cam = gendr.PerspectiveCamera(eye=(0.0, 0.0, 3.0), at=(0.0, 0.0, 0.0))
+    >>> isinstance(cam, gendr.Camera), cam.near, cam.far
+    (True, 0.1, 100.0)
+    >>> gendr.PerspectiveCamera(near=1.0, far=0.5)
+    Traceback (most recent call last):
+    ...
+    gendr.errors.ParameterError: PerspectiveCamera needs far > near, got near=1.0, far=0.5
     """
 
     eye: Any = (0.0, 0.0, 3.0)
@@ -253,7 +291,23 @@ def _normalize(ops, v):
 @dataclass(frozen=True, eq=False)
 class PerspectiveCamera(Camera):
     """Pinhole camera with vertical field of view ``fov_y`` in degrees; aspect = W/H (as pyrender's
-    ``PerspectiveCamera(yfov)``)."""
+    ``PerspectiveCamera(yfov)``).
+
+    Args: ``eye``, ``at``, ``up``, ``near``, ``far`` as for :class:`Camera`; ``fov_y``: number,
+    [B] array or tensor in (0, 180) degrees (differentiable when a tensor requiring grad).
+
+    >>> import numpy as np, torch, gendr
+    >>> cam = gendr.PerspectiveCamera(eye=(0.0, 0.0, 3.0), fov_y=40.0)
+    >>> r = gendr.Renderer(image_size=8, backend="torch")
+    >>> tri = np.array([[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [0.0, 1.0, 0.0]])
+    >>> img = r.render(torch.tensor(tri, dtype=torch.float32), [[0, 1, 2]], cam)
+    >>> img.shape, img.dtype, round(float(img[0, 4, 4, 3]), 3)
+    (torch.Size([1, 8, 8, 4]), torch.float32, 1.0)
+    >>> gendr.PerspectiveCamera(fov_y=180.0)
+    Traceback (most recent call last):
+    ...
+    gendr.errors.ParameterError: PerspectiveCamera parameter fov_y=180 must be in (0, 180) degrees
+    """
 
     fov_y: Any = 40.0
 
@@ -270,7 +324,16 @@ class PerspectiveCamera(Camera):
 @dataclass(frozen=True, eq=False)
 class OrthographicCamera(Camera):
     """Parallel projection showing ``[−xmag, xmag] × [−ymag, ymag]`` of the camera plane (as
-    pyrender's ``OrthographicCamera``; note pyrender itself uses xmag = ymag·W/H when rendering)."""
+    pyrender's ``OrthographicCamera``; note pyrender itself uses xmag = ymag·W/H when rendering).
+
+    Args: ``eye``, ``at``, ``up``, ``near``, ``far`` as for :class:`Camera`; ``xmag``, ``ymag``:
+    half-widths > 0 in world units (numbers, [B] arrays or tensors; differentiable).
+
+    >>> import gendr
+    >>> cam = gendr.OrthographicCamera(eye=(0.0, 0.0, 3.0), xmag=2.0, ymag=1.0)
+    >>> cam.orthographic, cam.ndc_affine(gendr.ops.numpy_ops, {"xmag": 2.0, "ymag": 1.0}, 8, 8)
+    (True, (0.5, 1.0, 0.0, 0.0))
+    """
 
     xmag: Any = 1.0
     ymag: Any = 1.0
@@ -290,7 +353,17 @@ class IntrinsicsCamera(Camera):
     """Pinhole camera from intrinsics in pixels: focal lengths ``fx, fy`` and principal point
     ``cx, cy`` with rows counted from the top (as pyrender's ``IntrinsicsCamera``). A point at
     camera coordinates (x, y, z) lands at column ``fx·x/(−z) + cx`` and row ``cy − fy·y/(−z)``
-    (pixel centres at half-integers)."""
+    (pixel centres at half-integers).
+
+    Args: ``eye``, ``at``, ``up``, ``near``, ``far`` as for :class:`Camera`; ``fx``, ``fy`` > 0
+    and ``cx``, ``cy`` in pixels of the rendered image (numbers, [B] arrays or tensors;
+    differentiable). The image size comes from the :class:`~gendr.Renderer`.
+
+    >>> import gendr
+    >>> cam = gendr.IntrinsicsCamera(fx=8.0, fy=8.0, cx=4.0, cy=4.0)
+    >>> cam.ndc_affine(gendr.ops.numpy_ops, {"fx": 8.0, "fy": 8.0, "cx": 4.0, "cy": 4.0}, 8, 8)
+    (2.0, 2.0, 0.0, 0.0)
+    """
 
     fx: Any = 100.0
     fy: Any = 100.0
@@ -313,6 +386,29 @@ def orbit_camera(azimuth, elevation, distance, *, at=(0.0, 0.0, 0.0), up=(0.0, 1
 
     ``orthographic=True`` gives an :class:`OrthographicCamera` with ``ymag`` (and ``xmag``, default
     ``ymag``); otherwise a :class:`PerspectiveCamera` with ``fov_y``.
+
+    Args:
+        azimuth, elevation: degrees (number, [B] array, or torch/Dr.Jit tensor; differentiable).
+        distance: world units, > 0 (same kinds; differentiable).
+        at, up: [3] or [B, 3], world space. fov_y: degrees; ymag/xmag: world units; near/far: as
+            for :class:`Camera`.
+
+    Returns: a :class:`Camera` whose ``eye`` is an :class:`Orbit`.
+
+    Raises: :class:`~gendr.errors.ParameterError` for a plain ``distance`` <= 0 or non-finite
+    (naming the batch element), and the camera's errors (:class:`Camera`).
+
+    >>> import torch, gendr
+    >>> cam = gendr.orbit_camera(30.0, 20.0, 3.0)
+    >>> type(cam).__name__, cam.eye
+    ('PerspectiveCamera', Orbit(azimuth=30.0, elevation=20.0, distance=3.0))
+    >>> az = torch.tensor([0.0, 90.0], requires_grad=True)  # two views, a pose to optimise
+    >>> gendr.orbit_camera(az, 0.0, 3.0, orthographic=True).xmag
+    1.0
+    >>> gendr.orbit_camera(0.0, 0.0, 0.0)
+    Traceback (most recent call last):
+    ...
+    gendr.errors.ParameterError: orbit_camera parameter distance=0 must be finite and > 0
     """
     eye = Orbit(azimuth, elevation, distance)
     if _plain(distance):

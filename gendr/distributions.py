@@ -55,7 +55,24 @@ DISTRIBUTIONS = Registry("distribution")
 
 @dataclass(frozen=True)
 class Distribution:
-    """A validated distribution setting. Frozen and hashable; build it with :func:`distribution`."""
+    """A validated distribution setting. Frozen and hashable; build it with :func:`distribution`.
+
+    Its methods (``cdf``, ``pdf``, ``coverage``, ...) take an ``ops`` namespace (``gendr.ops.numpy_ops``
+    or a backend's) and arrays of that namespace (NumPy, torch on any device, Dr.Jit), of any shape,
+    and return arrays of the same shape, dtype and device: elementwise and differentiable where the
+    family is (``.differentiable``). The
+    argument ``x`` is d/τ (or d·|d|/τ when ``squared``): signed screen-unit distance over τ.
+
+    >>> import numpy as np, gendr
+    >>> from gendr.ops import numpy_ops
+    >>> d = gendr.distribution("logistic")
+    >>> d, d.support(), d.differentiable
+    (Distribution('logistic'), (-inf, inf), True)
+    >>> d.cdf(numpy_ops, np.array([0.0, 2.0])).round(4)
+    array([0.5   , 0.8808])
+    >>> round(d.culling_distance(eps=1e-4, tau=0.01), 4)  # screen units beyond which p < eps
+    0.0921
+    """
 
     family: DistributionFamily
     params: tuple[tuple[str, float], ...] = ()
@@ -227,6 +244,23 @@ def distribution(name, *, reversed: bool = False, shift: float = 0.0, squared: b
     ``name`` may also be a :class:`Distribution` (returned unchanged when no options are given).
     Raises :class:`~gendr.errors.UnknownNameError` listing valid names, and
     :class:`~gendr.errors.ParameterError` for out-of-domain parameters.
+
+    Args:
+        name: a family of :data:`DISTRIBUTIONS` (``sorted(gendr.DISTRIBUTIONS)``).
+        reversed: mirror the CDF, F_rev(x) = 1 − F(−x) (one-sided families covering outside).
+        shift: finite float added to the argument, F(x + shift).
+        squared: use the argument d·|d|/τ instead of d/τ (τ then in squared screen units).
+        **params: the family's parameters as Python floats (e.g. ``shape`` of ``gamma``).
+
+    Returns a frozen, hashable :class:`Distribution` (plain Python numbers; no arrays, no device).
+
+    >>> import gendr
+    >>> gendr.distribution("gamma", shape=0.5, reversed=True, squared=True)
+    Distribution('gamma(shape=0.5)+rev+sq')
+    >>> gendr.distribution("gamma", shape=-1.0)
+    Traceback (most recent call last):
+    ...
+    gendr.errors.ParameterError: distribution 'gamma' parameter shape=-1.0 ...
     """
     if isinstance(name, Distribution):
         if params or reversed or shift or squared:

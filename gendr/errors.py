@@ -1,12 +1,35 @@
-"""Typed errors. Every message names the bad value and what was expected."""
+"""Typed errors. Every message names the bad value and what was expected.
+
+Each error also derives from the built-in exception a caller would catch without knowing gendr
+(``ValueError``, ``TypeError`` or ``ImportError``), so ``except ValueError`` keeps working.
+"""
 
 
 class GendrError(Exception):
-    """Base class of every error gendr raises on purpose."""
+    """Base class of every error gendr raises on purpose.
+
+    >>> import gendr
+    >>> try:
+    ...     gendr.distribution("no_such_distribution")
+    ... except gendr.GendrError as exc:
+    ...     print(type(exc).__name__)
+    UnknownNameError
+    """
 
 
 class UnknownNameError(GendrError, ValueError):
-    """A distribution, T-conorm, backend, scene ... name that does not exist."""
+    """A distribution, T-conorm, backend, scene ... name that does not exist.
+
+    Attributes: ``kind`` (e.g. ``"tconorm"``), ``name`` (the name given) and ``valid`` (tuple of the
+    valid names).
+
+    >>> import gendr
+    >>> try:
+    ...     gendr.tconorm("maximum")
+    ... except gendr.UnknownNameError as exc:
+    ...     print(exc.kind, exc.name, "max" in exc.valid, isinstance(exc, ValueError))
+    tconorm maximum True True
+    """
 
     def __init__(self, kind: str, name, valid):
         self.kind, self.name, self.valid = kind, name, tuple(valid)
@@ -14,24 +37,69 @@ class UnknownNameError(GendrError, ValueError):
 
 
 class ParameterError(GendrError, ValueError):
-    """A parameter outside its domain, missing, or not accepted by its family."""
+    """A parameter outside its domain, missing, or not accepted by its family.
+
+    >>> import gendr
+    >>> gendr.Renderer(tau=-1.0)
+    Traceback (most recent call last):
+    ...
+    gendr.errors.ParameterError: Renderer parameter tau=-1.0 is out of domain: expected finite and > 0
+    """
 
 
 class ShapeError(GendrError, ValueError):
-    """An array with the wrong number of dimensions or sizes."""
+    """An array with the wrong number of dimensions or sizes.
+
+    >>> import gendr
+    >>> gendr.PerspectiveCamera(eye=(0.0, 3.0))
+    Traceback (most recent call last):
+    ...
+    gendr.errors.ShapeError: camera parameter eye must have shape [3] or [B, 3], got [2]
+    """
 
 
 class DTypeError(GendrError, TypeError):
-    """An array of an unsupported dtype."""
+    """An array of an unsupported dtype (e.g. integer vertices, float face indices).
+
+    >>> import numpy as np, gendr
+    >>> r = gendr.Renderer(image_size=8, backend="torch")
+    >>> r.render(np.zeros((3, 3), dtype=np.int32), [[0, 1, 2]], gendr.PerspectiveCamera())
+    Traceback (most recent call last):
+    ...
+    gendr.errors.DTypeError: ...
+    """
 
 
 class DegenerateCameraError(ParameterError):
-    """A camera pose without a defined view: eye on at, or up parallel to the viewing direction."""
+    """A camera pose without a defined view: eye on at, or up parallel to the viewing direction.
+
+    >>> import gendr
+    >>> gendr.PerspectiveCamera(eye=(0.0, 0.0, 0.0), at=(0.0, 0.0, 0.0))
+    Traceback (most recent call last):
+    ...
+    gendr.errors.DegenerateCameraError: PerspectiveCamera: eye=(0, 0, 0) equals at=(0, 0, 0): ...
+    """
 
 
 class InputValueError(GendrError, ValueError):
-    """Input values that are invalid: non-finite vertices, face indices out of range, ..."""
+    """Input values that are invalid: non-finite vertices, face indices out of range, ...
+
+    >>> import numpy as np, gendr
+    >>> r = gendr.Renderer(image_size=8, backend="torch")
+    >>> r.render(np.eye(3), [[0, 1, 3]], gendr.PerspectiveCamera())
+    Traceback (most recent call last):
+    ...
+    gendr.errors.InputValueError: face indices must lie in [0, 2] (V = 3), got range [0, 3]
+    """
 
 
 class BackendUnavailableError(GendrError, ImportError):
-    """A backend is registered but cannot be imported (its dependencies are missing)."""
+    """A backend is registered but cannot be imported (its dependencies are missing).
+
+    Raised by :class:`~gendr.Renderer` when its ``backend`` cannot be loaded; the message names the
+    extra to install (``pip install gendr[drjit]``).
+
+    >>> import gendr
+    >>> issubclass(gendr.BackendUnavailableError, ImportError)
+    True
+    """

@@ -31,7 +31,20 @@ class GBuffer:
             interpolated with ``bary``, renormalised (smooth shading normal, as Lambert shading
             uses); 0 on background. Differentiable.
 
-    The floating arrays have the vertices' dtype. ``mask`` is ``face_id >= 0``.
+    The floating arrays have the vertices' dtype; all arrays are on the vertices' device (torch
+    CPU/CUDA tensors, or Dr.Jit tensors). ``mask`` is ``face_id >= 0``.
+
+    >>> import torch, gendr
+    >>> from gendr import scenes
+    >>> mesh = scenes.cube()
+    >>> r = gendr.Renderer(image_size=8, backend="torch")
+    >>> g = r.rasterize(torch.tensor(mesh.vertices, dtype=torch.float32), mesh.faces,
+    ...                 gendr.orbit_camera(0.0, 0.0, 3.0))
+    >>> g.face_id.shape, g.bary.dtype, g.normal.shape, g.mask.dtype
+    (torch.Size([1, 8, 8]), torch.float32, torch.Size([1, 8, 8, 3]), torch.bool)
+    >>> n = g.normal[0, 4, 4]  # a unit normal of the +Z side (smooth: interpolated vertex normals)
+    >>> round(float(n.norm()), 3), bool(n[2] > 0.9), int(g.face_id[0, 0, 0])  # corner: background
+    (1.0, True, -1)
     """
 
     face_id: Any

@@ -38,7 +38,19 @@ TCONORM_SETTINGS = (
 
 @dataclass(frozen=True)
 class Instance:
-    """One renderer instance of the grid: ``Renderer(instance.distribution, instance.tconorm, ...)``."""
+    """One renderer instance of the grid: ``Renderer(instance.distribution, instance.tconorm, ...)``.
+
+    Attributes: ``index`` (int, position in :func:`paper_grid`), ``distribution``
+    (:class:`~gendr.distributions.Distribution`), ``tconorm`` (:class:`~gendr.tconorms.TConorm`);
+    ``name`` is ``"<distribution label>|<tconorm label>"``.
+
+    >>> import gendr
+    >>> inst = gendr.paper_grid()[1]
+    >>> inst.index, inst.name
+    (1, 'uniform|probabilistic')
+    >>> gendr.Renderer(inst.distribution, inst.tconorm, image_size=8, backend="torch")
+    Renderer(uniform, probabilistic, tau=0.01, image_size=(8, 8), backend='torch', eps=0.0001, blend='softmax')
+    """
 
     index: int
     distribution: Distribution
@@ -50,7 +62,15 @@ class Instance:
 
 
 def paper_grid() -> list[Instance]:
-    """All 1,242 instances, distribution-major: (distribution setting, plain/squared, aggregation)."""
+    """All 1,242 instances, distribution-major: (distribution setting, plain/squared, aggregation).
+
+    Returns a new list of :class:`Instance` (plain Python specs; no arrays).
+
+    >>> import gendr
+    >>> grid = gendr.paper_grid()
+    >>> len(grid), grid[0].name, grid[-1].name
+    (1242, 'uniform|max', 'levy+rev+sq|schweizer_sklar(p=-0.5)')
+    """
     out = []
     for name, params, rev in DISTRIBUTION_SETTINGS:
         for squared in (False, True):

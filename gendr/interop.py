@@ -45,7 +45,17 @@ def _intrinsics(camera, H, W, dtype, device):
 
 def world_to_view(camera: Camera, dtype=None, device=None):
     """gendr's world → camera (OpenGL frame) transform as ``(R [Bc, 3, 3], t [Bc, 3])``:
-    x_view = R·x_world + t. Differentiable w.r.t. tensor pose parameters."""
+    x_view = R·x_world + t. Differentiable w.r.t. tensor pose parameters.
+
+    ``dtype``: torch dtype (default float64); ``device``: torch device (default CPU); Bc: the
+    camera's batch size (1 for an unbatched camera). Needs torch and the torch backend.
+
+    >>> import gendr
+    >>> from gendr.interop import world_to_view
+    >>> R, t = world_to_view(gendr.PerspectiveCamera(eye=(0.0, 0.0, 3.0)))
+    >>> R.shape, R.dtype, [float(v) + 0.0 for v in t[0]]
+    (torch.Size([1, 3, 3]), torch.float64, [0.0, 0.0, -3.0])
+    """
     torch = _torch()
     from gendr_torch.ops import torch_ops as ops  # (lazy: the spec layer imports no backend)
     from gendr_torch.raster import camera_tensors
@@ -61,7 +71,17 @@ def project_points(camera: Camera, points, image_size):
     """Pixel coordinates (column, row) of world points in gendr's convention (pixel centres at
     j + ½, rows from the top), by the same spec formulas the backends project with:
     ``points`` [B?, N, 3] float tensor → [B, N, 2] (differentiable). Points behind a perspective
-    camera project mirrored, as with any pinhole formula."""
+    camera project mirrored, as with any pinhole formula.
+
+    ``image_size``: (H, W) or int. The result has the points' dtype and device; it is
+    differentiable w.r.t. the points and the camera's tensor parameters.
+
+    >>> import torch, gendr
+    >>> from gendr.interop import project_points
+    >>> cam = gendr.PerspectiveCamera(eye=(0.0, 0.0, 3.0))
+    >>> project_points(cam, torch.tensor([[0.0, 0.0, 0.0]]), 8)  # the image centre
+    tensor([[[4., 4.]]])
+    """
     torch = _torch()
     from gendr_torch.ops import torch_ops as ops
     from gendr_torch.raster import camera_tensors
@@ -102,6 +122,15 @@ def to_kornia(camera: Camera, image_size, *, dtype=None, device=None):
 
     Returns a PinholeCamera with intrinsics/extrinsics [B, 4, 4], height/width [B] (B: the camera's
     batch size). Its ``project`` gives pixel coordinates = gendr's (column, row) − ½.
+
+    Raises :class:`~gendr.errors.ParameterError` for an orthographic camera or a bad
+    ``image_size``. Needs torch and kornia.
+
+    >>> import gendr
+    >>> from gendr.interop import to_kornia
+    >>> pc = to_kornia(gendr.PerspectiveCamera(eye=(0.0, 0.0, 3.0)), 8)
+    >>> type(pc).__name__, pc.intrinsics.shape, pc.extrinsics.dtype, float(pc.height[0])
+    ('PinholeCamera', torch.Size([1, 4, 4]), torch.float64, 8.0)
     """
     torch = _torch()
     from kornia.geometry.camera import PinholeCamera
@@ -127,7 +156,18 @@ def from_kornia(pinhole, *, near=0.1, far=100.0) -> IntrinsicsCamera:
     """A batched :class:`IntrinsicsCamera` ([B] intrinsics, [B, 3] eye/at/up) equivalent to a
     ``kornia.geometry.camera.PinholeCamera`` (render it at ``image_size=(int(pinhole.height[0]),
     int(pinhole.width[0]))``). Differentiable w.r.t. the pinhole's tensors. Needs zero skew and a
-    rotation in the extrinsics (raises :class:`ParameterError` otherwise)."""
+    rotation in the extrinsics (raises :class:`ParameterError` otherwise; :class:`ShapeError`
+    unless intrinsics and extrinsics are [B, 4, 4]). The camera's values are tensors of the
+    pinhole's dtype and device.
+
+    >>> import torch, gendr
+    >>> from gendr.interop import from_kornia, project_points, to_kornia
+    >>> cam = from_kornia(to_kornia(gendr.PerspectiveCamera(eye=(0.0, 0.0, 3.0)), 8))
+    >>> type(cam).__name__
+    'IntrinsicsCamera'
+    >>> project_points(cam, torch.tensor([[0.0, 0.0, 0.0]], dtype=torch.float64), 8)  # round trip
+    tensor([[[4., 4.]]], dtype=torch.float64)
+    """
     torch = _torch()
     K, E = pinhole.intrinsics, pinhole.extrinsics
     if K.ndim != 3 or K.shape[-2:] != (4, 4) or E.shape != K.shape:
@@ -160,6 +200,13 @@ def from_pytorch3d_look_at(dist=1.0, elev=0.0, azim=0.0, *, fov=60.0, degrees=Tr
     2·atan(tan(fov/2)·H/W). ``image_size`` is needed only when H > W (None: square / H <= W).
     ``znear``/``zfar`` become ``near``/``far``. Angles in degrees unless ``degrees=False``;
     dist/elev/azim/fov may be numbers, [B] arrays or tensors (requiring grad).
+
+    Returns a :class:`PerspectiveCamera` (PyTorch3D itself is not needed).
+
+    >>> from gendr.interop import from_pytorch3d_look_at
+    >>> cam = from_pytorch3d_look_at(dist=2.7, elev=10.0, azim=30.0)
+    >>> cam.eye, cam.fov_y, cam.near, cam.far
+    (Orbit(azimuth=30.0, elevation=10.0, distance=2.7), 60.0, 1.0, 100.0)
     """
     from .cameras import Orbit
     to_deg = (lambda v: v) if degrees else (lambda v: v * (180.0 / math.pi))

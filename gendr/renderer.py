@@ -31,6 +31,12 @@ class RenderSettings:
     """Everything that defines an image besides the mesh and the camera (validated, frozen).
 
     Distances (and τ) are in screen units: one unit = H/2 pixels, NDC for square images (DESIGN.md §3).
+    Built by :class:`Renderer` (its ``settings``) from its arguments; the fields mirror them.
+
+    >>> import gendr
+    >>> s = gendr.Renderer(tau=0.02, image_size=(8, 6), backend="torch").settings
+    >>> s.image_size, s.tau_value, s.distribution.label(), s.tconorm.label()
+    ((8, 6), 0.02, 'logistic', 'probabilistic')
     """
 
     distribution: Distribution
@@ -116,7 +122,15 @@ def _check_tau(tau):
 
 @lru_cache(maxsize=None)
 def available_backends() -> dict[str, metadata.EntryPoint]:
-    """Backends registered under the ``gendr.backends`` entry-point group (name -> entry point)."""
+    """Backends registered under the ``gendr.backends`` entry-point group (name -> entry point).
+
+    Registered is not importable: :class:`Renderer` raises
+    :class:`~gendr.errors.BackendUnavailableError` for a backend whose dependencies are missing.
+
+    >>> import gendr
+    >>> "torch" in gendr.available_backends()
+    True
+    """
     return {ep.name: ep for ep in metadata.entry_points(group=ENTRY_POINT_GROUP)}
 
 
@@ -181,6 +195,33 @@ class Renderer:
     texture_filter : "bilinear" (default) or "nearest"; texture_wrap : "repeat" (default) or
         "clamp": how textures given to :meth:`render` are sampled (docs/conventions.md, Textures).
     backend_options : passed to the backend (e.g. ``device="cuda"``).
+
+    Raises
+    ------
+    ParameterError (a setting out of its domain), UnknownNameError (distribution, T-conorm or
+    backend name), ShapeError (a non-scalar ``tau``), BackendUnavailableError (a registered backend
+    that cannot be imported): all from :mod:`gendr.errors`.
+
+    Devices and differentiability: the renderer holds no arrays; :meth:`render` and
+    :meth:`rasterize` return arrays of the backend on the inputs' device (torch: CPU or CUDA, as
+    the vertices; Dr.Jit: its LLVM/CUDA variant) and are differentiable w.r.t. every float input
+    given as a tensor that requires grad (vertices, colours, texture, uvs, camera parameters, a
+    tensor ``tau``, a learnable T-conorm parameter).
+
+    Examples
+    --------
+    >>> import torch, gendr
+    >>> from gendr import scenes
+    >>> mesh = scenes.icosphere(1)  # 42 vertices, 80 faces, radius 1
+    >>> r = gendr.Renderer("logistic", "probabilistic", tau=0.01, image_size=8, backend="torch")
+    >>> r
+    Renderer(logistic, probabilistic, tau=0.01, image_size=(8, 8), backend='torch', eps=0.0001, blend='softmax')
+    >>> verts = torch.tensor(mesh.vertices, dtype=torch.float32, requires_grad=True)
+    >>> img = r.render(verts, mesh.faces, gendr.orbit_camera(30.0, 20.0, 3.0))
+    >>> img.shape, img.dtype, img.device.type, round(float(img.detach()[0, 4, 4, 3]), 3)
+    (torch.Size([1, 8, 8, 4]), torch.float32, 'cpu', 1.0)
+    >>> img[..., 3].sum().backward(); verts.grad.shape
+    torch.Size([42, 3])
     """
 
     def __init__(self, distribution="logistic", tconorm="probabilistic", tau=0.01, image_size=(256, 256),
@@ -246,6 +287,27 @@ class Renderer:
             separate ``vt`` indices); default ``faces`` (then T = V).
 
         Returns [B, H, W, 4] in the vertices' dtype: RGB, then alpha (the aggregated coverage).
+        A backend array on the vertices' device (torch: CPU/CUDA tensor; Dr.Jit: TensorXf/
+        TensorXf64); NumPy inputs are converted to the backend (torch: CPU). Differentiable w.r.t.
+        vertices, colours, texture, uvs, the camera's tensor parameters, a tensor ``tau`` and a
+        learnable T-conorm parameter (whichever require grad); ``faces`` and ``uv_faces`` are not.
+        Pixel (row i, column j) is sampled at its centre; row 0 is the top of the image.
+
+        Raises (:mod:`gendr.errors`): ShapeError (shapes above), DTypeError (integer vertices or
+        colours, float indices), InputValueError (non-finite values, indices out of range),
+        ParameterError (both colour kinds, uvs without a texture, a camera that is not a gendr
+        camera, a learnable parameter out of its domain), DegenerateCameraError (a camera tensor
+        without a defined view).
+
+        >>> import torch, gendr
+        >>> from gendr import scenes
+        >>> cube = scenes.cube(1.0)  # 8 vertices, 12 faces
+        >>> r = gendr.Renderer(tau=0.01, image_size=8, backend="torch", blend="hard")
+        >>> v = torch.tensor(cube.vertices)  # float64 in, float64 out
+        >>> cams = gendr.orbit_camera(torch.tensor([0.0, 45.0]), 20.0, 3.0)  # a batch of 2 views
+        >>> img = r.render(v, cube.faces, cams, face_colors=torch.ones(12, 3, dtype=torch.float64))
+        >>> img.shape, img.dtype, round(float(img[1, 4, 4, 3]), 3), round(float(img[0, 0, 0, 3]), 3)
+        (torch.Size([2, 8, 8, 4]), torch.float64, 1.0, 0.0)
         """
         if vertex_colors is not None and face_colors is not None:
             raise ParameterError("give vertex_colors or face_colors, not both")
@@ -283,6 +345,21 @@ class Renderer:
         Uses the image size, ``cull_backfaces`` and ``max_pairs`` of the settings; the coverage
         settings (distribution, τ, eps, blend) play no part. Differentiable w.r.t. vertices and
         camera (bary, depth, normal); face_id is piecewise constant.
+
+        Returns a :class:`~gendr.gbuffer.GBuffer`: ``face_id`` [B, H, W] integer (−1: background),
+        ``bary`` [B, H, W, 3], ``depth`` [B, H, W] (world units, positive in front), ``normal``
+        [B, H, W, 3] (world space); floats in the vertices' dtype, on the vertices' device.
+        Raises ShapeError, DTypeError, InputValueError, ParameterError as :meth:`render`.
+
+        >>> import torch, gendr
+        >>> from gendr import scenes
+        >>> mesh = scenes.icosphere(1)
+        >>> r = gendr.Renderer(image_size=8, backend="torch")
+        >>> g = r.rasterize(torch.tensor(mesh.vertices), mesh.faces, gendr.orbit_camera(30.0, 20.0, 3.0))
+        >>> g.face_id.shape, g.face_id.dtype, g.bary.shape, g.depth.dtype
+        (torch.Size([1, 8, 8]), torch.int64, torch.Size([1, 8, 8, 3]), torch.float64)
+        >>> round(float(g.depth[0, 4, 4]), 3), int(g.mask.sum())  # centre: ~3 − 1 from the eye
+        (2.033, 45)
         """
         be = self.backend
         verts, faces_a = self._mesh_inputs(vertices, faces, camera)
@@ -312,5 +389,13 @@ class Renderer:
         return verts, faces_a
 
     def to_numpy(self, image):
-        """The backend's image as a NumPy array (detached)."""
+        """The backend's image as a NumPy array (detached, on the CPU; same shape and dtype).
+
+        >>> import numpy as np, gendr
+        >>> r = gendr.Renderer(image_size=8, backend="torch")
+        >>> tri = np.array([[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [0.0, 1.0, 0.0]], dtype=np.float32)
+        >>> a = r.to_numpy(r.render(tri, [[0, 1, 2]], gendr.PerspectiveCamera()))
+        >>> type(a).__name__, a.shape, a.dtype
+        ('ndarray', (1, 8, 8, 4), dtype('float32'))
+        """
         return self.backend.to_numpy(image)

@@ -41,7 +41,17 @@ class Mesh:
 
     The constructor converts the inputs (any array-like) to these dtypes and checks shapes and that
     every index lies in ``[0, V)``; it raises :class:`~gendr.errors.ShapeError` or
-    :class:`~gendr.errors.InputValueError`.
+    :class:`~gendr.errors.InputValueError`. NumPy on the CPU, not differentiable: convert to a
+    backend tensor (e.g. ``torch.tensor(mesh.vertices, requires_grad=True)``) to render.
+
+    >>> from gendr.scenes import Mesh
+    >>> m = Mesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
+    >>> m, m.vertices.dtype, m.faces.dtype, m.face_areas()
+    (Mesh(V=3, F=1), dtype('float64'), dtype('int64'), array([0.5]))
+    >>> Mesh([[0, 0, 0]], [[0, 1, 2]])
+    Traceback (most recent call last):
+    ...
+    gendr.errors.InputValueError: mesh face indices must lie in [0, 1), got range [0, 2]
     """
 
     vertices: np.ndarray
@@ -115,7 +125,12 @@ class Mesh:
 # ------------------------------------------------------------------------------------------------
 
 def concatenate(meshes) -> Mesh:
-    """One mesh holding all parts (vertices are not merged, so closed parts stay closed)."""
+    """One mesh holding all parts (vertices are not merged, so closed parts stay closed).
+
+    >>> from gendr import scenes
+    >>> scenes.concatenate([scenes.cube(), scenes.tetrahedron()])
+    Mesh(V=12, F=16)
+    """
     vs, fs, offset = [], [], 0
     for m in meshes:
         vs.append(m.vertices)
@@ -125,7 +140,13 @@ def concatenate(meshes) -> Mesh:
 
 
 def normalize(mesh: Mesh, radius: float = 1.0) -> Mesh:
-    """Centre ``mesh`` on its bounding-box centre and scale it so the farthest vertex is at ``radius``."""
+    """Centre ``mesh`` on its bounding-box centre and scale it so the farthest vertex is at ``radius``
+    (world units); returns a new :class:`Mesh`.
+
+    >>> from gendr import scenes
+    >>> scenes.normalize(scenes.cube(2.0)).bounding_radius
+    1.0
+    """
     if not (isinstance(radius, (int, float)) and math.isfinite(radius) and radius > 0):
         raise InputValueError(f"normalize radius must be a finite number > 0, got {radius!r}")
     v = mesh.vertices
@@ -260,6 +281,11 @@ def icosphere(subdivisions: int = 3, radius: float = 1.0) -> Mesh:
     """Geodesic sphere: an icosahedron subdivided ``subdivisions`` times (each face into 4).
 
     Faces: 20·4^s (s = 3: 1,280 faces, 642 vertices; s = 5: 20,480 faces). Vertices: 10·4^s + 2.
+    ``subdivisions``: int in [0, 8]; ``radius``: world units > 0 (else ParameterError).
+
+    >>> from gendr.scenes import icosphere
+    >>> icosphere(1), icosphere(1, radius=2.0).bounding_radius
+    (Mesh(V=42, F=80), 2.0)
     """
     s = _check_int("icosphere subdivisions", subdivisions, 0, 8)
     radius = _check_pos("icosphere radius", radius)
@@ -287,6 +313,11 @@ def cube(size: float = 1.0) -> Mesh:
     """Axis-aligned cube with edge length ``size`` centred at the origin (8 vertices, 12 faces).
 
     The default ``size=1`` fits in the unit ball (half diagonal 0.866).
+
+    >>> from gendr.scenes import cube
+    >>> m = cube(1.0)
+    >>> m, round(m.signed_volume(), 6), round(m.bounding_radius, 3)
+    (Mesh(V=8, F=12), 1.0, 0.866)
     """
     size = _check_pos("cube size", size)
     return _box(half=(size / 2,) * 3)
@@ -296,6 +327,10 @@ def torus(R: float = 0.7, r: float = 0.3, n_major: int = 48, n_minor: int = 24) 
     """Ring torus lying in the XZ plane (axis +Y): major radius ``R``, tube radius ``r``.
 
     ``2·n_major·n_minor`` faces; genus 1 (Euler characteristic 0). Default fits the unit ball (R + r = 1).
+
+    >>> from gendr.scenes import torus
+    >>> torus(n_major=8, n_minor=4)
+    Mesh(V=32, F=64)
     """
     R, r = _check_pos("torus R", R), _check_pos("torus r", r)
     if r >= R:
@@ -346,7 +381,12 @@ def teapot_like() -> Mesh:
 
 
 def tetrahedron() -> Mesh:
-    """Regular tetrahedron inscribed in the unit ball (4 vertices, 4 faces)."""
+    """Regular tetrahedron inscribed in the unit ball (4 vertices, 4 faces).
+
+    >>> from gendr.scenes import tetrahedron
+    >>> tetrahedron(), round(tetrahedron().bounding_radius, 6)
+    (Mesh(V=4, F=4), 1.0)
+    """
     v = np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]], dtype=np.float64) / math.sqrt(3.0)
     f = np.array([[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]], dtype=np.int64)
     return Mesh(v, _orient_convex(v, f))
@@ -418,6 +458,14 @@ def get_scene(name: str, **kwargs) -> Mesh:
     """Build the built-in scene ``name`` (keyword arguments go to its function).
 
     Raises :class:`~gendr.errors.UnknownNameError` listing the valid names.
+
+    >>> from gendr.scenes import get_scene
+    >>> get_scene("torus", n_major=8, n_minor=4)
+    Mesh(V=32, F=64)
+    >>> get_scene("sphere")
+    Traceback (most recent call last):
+    ...
+    gendr.errors.UnknownNameError: unknown scene 'sphere'; valid scene names: airplane, ...
     """
     if not isinstance(name, str) or name not in SCENES:
         raise UnknownNameError("scene", name, sorted(SCENES))
@@ -431,6 +479,13 @@ def load_mesh(path) -> Mesh:
     triangulated; vertices are kept as stored (no merging). Raises
     :class:`~gendr.errors.InputValueError` naming the path when it cannot be read, holds no faces or
     has non-finite vertices, and :class:`~gendr.errors.BackendUnavailableError` without trimesh.
+
+    >>> import os, tempfile
+    >>> from gendr.scenes import load_mesh
+    >>> path = os.path.join(tempfile.mkdtemp(), "tri.obj")
+    >>> _ = open(path, "w").write("v 0 0 0\\nv 1 0 0\\nv 0 1 0\\nf 1 2 3\\n")
+    >>> load_mesh(path)
+    Mesh(V=3, F=1)
     """
     p = os.fspath(path)
     if not os.path.isfile(p):
@@ -471,6 +526,11 @@ class TexturedMesh(Mesh):
 
     Render with ``Renderer.render(m.vertices, m.faces, cam, texture=m.texture, uvs=m.uvs,
     uv_faces=m.uv_faces)``. Raises ShapeError / InputValueError for bad shapes or indices.
+
+    >>> from gendr.scenes import textured_cube
+    >>> m = textured_cube()
+    >>> m, m.uvs.shape, m.uv_faces.shape, m.texture.dtype
+    (TexturedMesh(V=8, F=12, T=24, texture=(32, 48, 3)), (24, 2), (12, 3), dtype('float64'))
     """
 
     uvs: np.ndarray = None
@@ -507,7 +567,13 @@ class TexturedMesh(Mesh):
 def checker_texture(height: int = 32, width: int = 48, square: int = 4) -> np.ndarray:
     """A procedural ``[height, width, 3]`` texture: a 3×2 atlas of cells (one per cube side), each a
     checker of ``square``-texel squares in two colours of its own times a smooth diagonal gradient.
-    Values are multiples of 1/255 (exact in 8-bit references)."""
+    Values are multiples of 1/255 (exact in 8-bit references). float64 NumPy, row 0 at the top.
+
+    >>> from gendr.scenes import checker_texture
+    >>> t = checker_texture(8, 12, square=2)
+    >>> t.shape, t.dtype, bool(((t >= 0) & (t <= 1)).all())
+    ((8, 12, 3), dtype('float64'), True)
+    """
     h, w = _check_int("texture height", height, 2), _check_int("texture width", width, 2)
     sq = _check_int("checker square", square, 1)
     r, c = np.meshgrid(np.arange(h), np.arange(w), indexing="ij")
@@ -523,7 +589,17 @@ def textured_cube(size: float = 1.0, texture: np.ndarray | None = None) -> Textu
     """The cube of :func:`cube` (8 positions, 12 faces) with a texture atlas: side k uses cell
     (k mod 3, k div 3) of a 3×2 grid of :func:`checker_texture` (inset by 5 % so bilinear filtering
     never reads a neighbouring cell). 24 uvs indexed per face corner (``uv_faces`` ≠ ``faces``, as in
-    an OBJ file)."""
+    an OBJ file).
+
+    >>> import torch, gendr
+    >>> from gendr.scenes import textured_cube
+    >>> m = textured_cube()
+    >>> r = gendr.Renderer(image_size=8, backend="torch", blend="hard")
+    >>> img = r.render(torch.tensor(m.vertices), m.faces, gendr.orbit_camera(30.0, 20.0, 3.0),
+    ...                texture=torch.tensor(m.texture), uvs=torch.tensor(m.uvs), uv_faces=m.uv_faces)
+    >>> img.shape, img.dtype
+    (torch.Size([1, 8, 8, 4]), torch.float64)
+    """
     size = _check_pos("cube size", size)
     tex = checker_texture() if texture is None else texture
     positions, uvs, faces, uv_faces = [], [], [], []
@@ -557,7 +633,13 @@ TEXTURED_SCENES: dict[str, Callable[..., TexturedMesh]] = {"textured_cube": text
 
 
 def get_textured_scene(name: str, **kwargs) -> TexturedMesh:
-    """Build the built-in textured scene ``name`` (:data:`TEXTURED_SCENES`)."""
+    """Build the built-in textured scene ``name`` (:data:`TEXTURED_SCENES`); raises
+    :class:`~gendr.errors.UnknownNameError` for another name.
+
+    >>> from gendr.scenes import get_textured_scene
+    >>> get_textured_scene("textured_cube")
+    TexturedMesh(V=8, F=12, T=24, texture=(32, 48, 3))
+    """
     if not isinstance(name, str) or name not in TEXTURED_SCENES:
         raise UnknownNameError("textured scene", name, sorted(TEXTURED_SCENES))
     return TEXTURED_SCENES[name](**kwargs)

@@ -79,7 +79,21 @@ TCONORMS = Registry("tconorm")
 
 @dataclass(frozen=True)
 class TConorm:
-    """A validated T-conorm setting; build it with :func:`tconorm`."""
+    """A validated T-conorm setting; build it with :func:`tconorm`.
+
+    Its methods (``binary``, ``aggregate``, ...) take an ``ops`` namespace (``gendr.ops.numpy_ops``
+    or a backend's) and same-shaped arrays of it (NumPy, torch on any device, Dr.Jit) with
+    coverages in [0, 1], and return an array of that shape, dtype and device, differentiable in the
+    inputs (and in a learnable parameter) where the family is (``.differentiable``).
+
+    >>> import numpy as np, gendr
+    >>> from gendr.ops import numpy_ops
+    >>> t = gendr.tconorm("probabilistic")  # a ⊥ b = a + b − a·b
+    >>> t, t.kind, t.is_tconorm
+    (TConorm('probabilistic'), 'archimedean', True)
+    >>> t.aggregate(numpy_ops, [np.array([0.5, 0.2]), np.array([0.5, 0.0])]).round(6)
+    array([0.75, 0.2 ])
+    """
 
     family: TConormFamily
     params: tuple[tuple[str, float], ...] = ()
@@ -258,6 +272,21 @@ def tconorm(name, **params) -> TConorm:
 
     ``name`` may also be a :class:`TConorm` (returned unchanged). Raises
     :class:`~gendr.errors.UnknownNameError` / :class:`~gendr.errors.ParameterError`.
+
+    Args: ``name`` of :data:`TCONORMS` (``sorted(gendr.TCONORMS)``); ``**params``: the family's
+    parameters (Python floats, or 0-d tensors requiring grad: learnable, on any device).
+    Returns a frozen :class:`TConorm`.
+
+    >>> import torch, gendr
+    >>> gendr.tconorm("yager", p=2)
+    TConorm('yager(p=2)')
+    >>> p = torch.tensor(2.0, requires_grad=True)
+    >>> sorted(gendr.tconorm("yager", p=p).learnable)
+    ['p']
+    >>> gendr.tconorm("yager", p=-1.0)
+    Traceback (most recent call last):
+    ...
+    gendr.errors.ParameterError: tconorm 'yager' parameter p=-1.0 ...
     """
     if isinstance(name, TConorm):
         if params:

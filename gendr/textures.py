@@ -40,7 +40,19 @@ def _wrap_index(i, n, wrap):
 
 
 def sample_numpy(texture, uv, filter="bilinear", wrap="repeat"):
-    """Reference sampler in float64 NumPy: ``texture`` [Ht, Wt, C], ``uv`` [..., 2] -> [..., C]."""
+    """Reference sampler in float64 NumPy: ``texture`` [Ht, Wt, C], ``uv`` [..., 2] -> [..., C].
+
+    ``filter``: ``"bilinear"`` or ``"nearest"``; ``wrap``: ``"repeat"`` or ``"clamp"`` (conventions
+    in the module docstring; v runs bottom to top, texture row 0 is the top). Not differentiable
+    (NumPy); the backends' samplers are, and are tested against this one.
+
+    >>> import numpy as np
+    >>> from gendr.textures import sample_numpy
+    >>> tex = np.zeros((2, 2, 3)); tex[0, 1] = 1.0  # top-right texel white
+    >>> sample_numpy(tex, [[0.75, 0.75], [0.5, 0.5]])  # its centre, and the image centre
+    array([[1.  , 1.  , 1.  ],
+           [0.25, 0.25, 0.25]])
+    """
     tex = np.asarray(texture, dtype=np.float64)
     uv = np.asarray(uv, dtype=np.float64)
     Ht, Wt = tex.shape[:2]
