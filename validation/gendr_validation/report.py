@@ -319,41 +319,47 @@ def _matrix_html(summary, ok) -> str:
     e = html.escape
     cells = matrix_cells(summary)
     backends = list(dict.fromkeys([*summary["backends"], *(k[2] for k in cells)]))
-    rows = list(dict.fromkeys((k[0], k[1]) for k in cells))
+    scenes = list(dict.fromkeys(k[0] for k in cells))
+    cams = list(dict.fromkeys(k[1] for k in cells))
     labels = {k: (lab, title) for k, lab, title in KINDS}
+    # scenes down, camera x backend across: a screenful even for the full set of scenes
     out = ['<h2 id="summary">Summary</h2><p>One cell per scene &times; camera &times; backend; each check kind in it '
            '(' + ", ".join(f"<b>{lab}</b>: {e(t)}" for _, lab, t in KINDS) + ') is green when it passed, red when it '
            'failed, and links to its details. Passing details are collapsed, failing ones open.</p>'
-           '<table class="matrix"><tr><th>scene</th><th>camera</th>'
-           + "".join(f"<th>{e(b)}</th>" for b in backends) + "</tr>"]
-    for sc, cam in rows:
-        out.append(f"<tr><td>{e(sc)}</td><td>{e(cam)}</td>")
-        for b in backends:
-            kinds = cells.get((sc, cam, b))
-            if kinds is None:
-                out.append('<td class="cell none">&ndash;</td>')
-                continue
-            links = " ".join(f'<a class="{"ok" if kinds[k] else "fail"}" href="#{k}-{_slug(sc, cam, b)}" '
-                             f'title="{e(labels[k][1])}: {"pass" if kinds[k] else "FAIL"}">{labels[k][0]}</a>'
-                             for k, _, _ in KINDS if k in kinds)
-            cls = "pass" if all(kinds.values()) else "failed"
-            out.append(f'<td class="cell {cls}" data-scene="{e(sc)}" data-camera="{e(cam)}" data-backend="{e(b)}">'
-                       f"{links}</td>")
+           '<table class="matrix"><tr><th rowspan="2">scene</th>'
+           + "".join(f'<th colspan="{len(backends)}">{e(c)}</th>' for c in cams) + "</tr><tr>"
+           + "".join(f"<th>{e(b)}</th>" for _ in cams for b in backends) + "</tr>"]
+    ncol = len(cams) * len(backends)
+    for sc in scenes:
+        out.append(f"<tr><td>{e(sc)}</td>")
+        for cam in cams:
+            for b in backends:
+                kinds = cells.get((sc, cam, b))
+                if kinds is None:
+                    out.append('<td class="cell none">&ndash;</td>')
+                    continue
+                links = " ".join(f'<a class="{"ok" if kinds[k] else "fail"}" href="#{k}-{_slug(sc, cam, b)}" '
+                                 f'title="{e(labels[k][1])}: {"pass" if kinds[k] else "FAIL"}">{labels[k][0]}</a>'
+                                 for k, _, _ in KINDS if k in kinds)
+                cls = "pass" if all(kinds.values()) else "failed"
+                out.append(f'<td class="cell {cls}" data-scene="{e(sc)}" data-camera="{e(cam)}" data-backend="{e(b)}">'
+                           f"{links}</td>")
         out.append("</tr>")
     gr = summary["gradients"]
-    out.append('<tr><td colspan="2"><a href="#gradients">gradients vs FD</a> (all instances)</td>')
+    out.append('<tr><td><a href="#gradients">gradients vs FD</a></td>')
+    span = max(1, ncol // max(1, len(backends)))
     for b in backends:
         rs = [r for r in gr["rows"] if r["backend"] == b]
         if not rs:
-            out.append('<td class="cell none">&ndash;</td>')
+            out.append(f'<td colspan="{span}" class="cell none">&ndash;</td>')
             continue
         nf = sum(not r["passed"] for r in rs)
-        out.append(f'<td class="cell {"failed" if nf else "pass"}"><a class="{"fail" if nf else "ok"}" '
-                   f'href="#gr-{_slug(b)}">{len(rs) - nf}/{len(rs)}</a></td>')
+        out.append(f'<td colspan="{span}" class="cell {"failed" if nf else "pass"}"><a class="{"fail" if nf else "ok"}" '
+                   f'href="#gr-{_slug(b)}">{e(b)}: {len(rs) - nf}/{len(rs)}</a></td>')
     out.append("</tr>")
     if gr["backend_parity"]:
         nf = sum(not r["passed"] for r in gr["backend_parity"])
-        out.append(f'<tr><td colspan="2"><a href="#parity">backend parity</a></td><td colspan="{len(backends)}" '
+        out.append(f'<tr><td><a href="#parity">backend parity</a></td><td colspan="{ncol}" '
                    f'class="cell {"failed" if nf else "pass"}"><a class="{"fail" if nf else "ok"}" href="#parity">'
                    f'{len(gr["backend_parity"]) - nf}/{len(gr["backend_parity"])}</a></td></tr>')
     out.append("</table>")
@@ -446,6 +452,13 @@ img.scatter{{image-rendering:auto;max-width:100%}}</style>{_OPEN_TARGET}
 &middot; {summary['seconds']:.1f} s &middot; <a href="#hard-limit">§1 hard limit</a> &middot;
 <a href="#gradients">§2 gradients</a> &middot; <a href="#textures">§3 textures</a> &middot; <a href="#gbuffer">§4 G-buffers</a></p>"""]
     out.append(_matrix_html(summary, ok))
+    scatter = _grad_scatter(summary["gradients"]["rows"])
+    if scatter:
+        out.append('<h3 id="gradient-picture">Gradients: analytic vs finite differences</h3><p>Analytic (AD, y) vs '
+                   'finite-difference (FD, x) derivative of the sampled outputs the per-pixel metric compares, one '
+                   'panel per grid instance, each check scaled by its largest |FD| sample; colour: parameter, marker: '
+                   'backend; on the diagonal AD = FD. Tables in <a href="#gradients">§2</a>.</p>'
+                   f'<img class="scatter" id="gradient-scatter" alt="AD vs FD scatter" src="data:image/png;base64,{scatter}">')
     if summary["notes"]:
         out.append("<h3>Notes</h3><ul>" + "".join(f"<li>{e(n)}</li>" for n in summary["notes"]) + "</ul>")
     hl = summary["hard_limit"]
@@ -512,12 +525,8 @@ Images per scene &times; camera: each reference's mask, gendr's heaviside|or sil
 (squared: {gr['tau_squared']:g}), softmax blend. Metric |a − r| / max(|r|, {gr['floor']:g}); thresholds
 {e(json.dumps(gr['thresholds']))}; steps h {e(json.dumps(gr['steps']))} (τ: relative). {gr['checks']} checks,
 {gr['failed']} failed. {e(gr['note'])}.</p>""")
-    scatter = _grad_scatter(gr["rows"])
     if scatter:
-        out.append('<p>Analytic (AD, y) vs finite-difference (FD, x) derivative of the sampled outputs the per-pixel '
-                   'metric compares, one panel per grid instance, each check scaled by its largest |FD| sample; '
-                   'colour: parameter, marker: backend; on the diagonal AD = FD.</p>'
-                   f'<img class="scatter" id="gradient-scatter" alt="AD vs FD scatter" src="data:image/png;base64,{scatter}">')
+        out.append('<p>The AD-vs-FD scatter of these checks is under the <a href="#gradient-picture">summary</a>.</p>')
     if grad_results:
         out.append(_details("gr-errors", True, "relative errors per instance (plot)",
                             f'<img src="data:image/png;base64,{_grad_plot(grad_results)}">'))
