@@ -84,3 +84,84 @@ def test_bad_jobs_is_rejected(tmp_path, bad):
     with pytest.raises(gendr.ParameterError, match="jobs"):
         report.run(backends=["torch"], instances=[271], outdir=str(tmp_path), jobs=bad)
     assert not (tmp_path / "summary.json").exists()
+
+
+# --- the report read at a glance: summary matrix, collapsed passing details, AD-vs-FD scatter -------------
+class _Page:
+    """The parts of a report page the tests look at (stdlib HTML parser, no browser)."""
+
+    def __init__(self, text):
+        from html.parser import HTMLParser
+        self.ids, self.hrefs, self.details, self.cells, self.imgs = set(), [], {}, [], {}
+        page = self
+
+        class P(HTMLParser):
+            def handle_starttag(self, tag, attrs):
+                a = dict(attrs)
+                if "id" in a:
+                    page.ids.add(a["id"])
+                if tag == "a" and a.get("href", "").startswith("#"):
+                    page.hrefs.append(a["href"][1:])
+                if tag == "details":
+                    page.details[a["id"]] = "open" in a
+                if tag == "td" and "data-backend" in a:
+                    page.cells.append(((a["data-scene"], a["data-camera"], a["data-backend"]), a["class"]))
+                if tag == "img" and "id" in a:
+                    page.imgs[a["id"]] = a["src"]
+
+        P().feed(text)
+
+
+@pytest.fixture(scope="module")
+def small_report(tmp_path_factory):
+    out = tmp_path_factory.mktemp("glance")
+    s = report.run(backends=["torch"], instances=[271], scenes=["cube"], outdir=str(out), size=(24, 32),
+                   cameras=["perspective", "orthographic"], limit_instances=["heaviside|or"])
+    return s, (out / "report.html").read_text()
+
+
+def test_report_summary_matrix_links_and_collapsed_details(small_report):
+    s, text = small_report
+    page = _Page(text)
+    assert text.index('id="summary"') < text.index('id="hard-limit"')  # the matrix comes first
+    keys = {(r["scene"], r["camera"], r["backend"]) for k in ("textures", "gbuffer") for r in s[k]["rows"]}
+    keys |= {(r["scene"], r["camera"], r["backend"]) for r in s["hard_limit"]["table"]}
+    cells = [k for k, _ in page.cells]
+    assert sorted(cells) == sorted(keys) and len(cells) == len(set(cells))  # one cell per scene x camera x backend
+    assert ("cube", "perspective", "torch") in cells
+    assert page.hrefs and all(h in page.ids for h in page.hrefs), set(page.hrefs) - page.ids
+    for sc, cam, b in keys:
+        assert any(h.endswith(f"-{report._slug(sc, cam, b)}") for h in page.hrefs)
+    assert s["passed"] and page.details and not any(page.details.values())  # everything passed: all collapsed
+    assert all(cls == "cell pass" for _, cls in page.cells)
+
+
+def test_report_scatter_of_sampled_ad_vs_fd(small_report):
+    s, text = small_report
+    rows = s["gradients"]["rows"]
+    assert all(len(r["ad_samples"]) == len(r["fd_samples"]) > 0 for r in rows)
+    for r in rows:  # the samples the per-pixel metric compared: AD on the diagonal within its threshold
+        ad, fd = (__import__("numpy").asarray(r[k]) for k in ("ad_samples", "fd_samples"))
+        assert abs(ad - fd).max() <= 1e-2 * max(abs(fd).max(), 1e-3)
+    src = _Page(text).imgs["gradient-scatter"]
+    assert src.startswith("data:image/png;base64,") and len(src) > 2000
+
+
+def test_report_failing_sections_are_open(small_report):
+    import copy
+    s, _ = small_report
+    bad = copy.deepcopy(s)
+    bad["passed"] = False
+    hl = bad["hard_limit"]["table"][0]
+    hl["failed_instances"] = 1
+    gbr = next(r for r in bad["gbuffer"]["rows"] if r["camera"] != hl["camera"])
+    gbr["passed"] = False
+    bad["gradients"]["rows"][0]["passed"] = False
+    page = _Page(report._html(bad, [], [], {}, None))
+    failed_cells = {k for k, cls in page.cells if cls == "cell failed"}
+    assert failed_cells == {(hl["scene"], hl["camera"], hl["backend"]), (gbr["scene"], gbr["camera"], gbr["backend"])}
+    opened = {i for i, o in page.details.items() if o}
+    assert opened == {f"hl-{report._slug(hl['scene'], hl['camera'])}", f"gb-{report._slug(gbr['scene'], gbr['camera'])}",
+                      "gr-torch"}, opened
+    assert f"hl-{report._slug(hl['scene'], hl['camera'], hl['backend'])}" in page.ids
+    assert all(h in page.ids for h in page.hrefs)

@@ -187,6 +187,10 @@ class GradResult:
     loss_err: float
     max_abs_fd: float
     seconds: float
+    #: the sampled outputs the per-pixel metric compared (at most PIXEL_SAMPLES / TAU_SAMPLES of them):
+    #: analytic and finite-difference derivative, same order; the report's AD-vs-FD scatter plots them
+    ad_samples: tuple = field(default=(), repr=False)
+    fd_samples: tuple = field(default=(), repr=False)
 
     @property
     def passed(self) -> bool:
@@ -250,7 +254,8 @@ def check_instance(adapter, inst, *, H=H_DEFAULT, W=W_DEFAULT, seed=0, params=PA
         loss_err = abs(loss_ad - loss_fd) / max(abs(loss_fd), FLOOR)
         dt = time.perf_counter() - t0
         results.append(GradResult(adapter.name, inst.index, inst.name, param, h, float(err.mean()), float(err.max()),
-                                  loss_ad, loss_fd, float(loss_err), float(np.abs(fd).max()), dt))
+                                  loss_ad, loss_fd, float(loss_err), float(np.abs(fd).max()), dt,
+                                  tuple(map(float, ad[mask])), tuple(map(float, fd[mask]))))
         if keep_images:
             images[param] = (fp, ad, fd)
     return results, (images if keep_images else None)
