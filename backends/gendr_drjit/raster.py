@@ -855,9 +855,11 @@ def alpha_max(s, fc, T, ops, pix, tau):
     return dr.select(has, coverage(s, ops, d, tau, x_cut), 0.0)
 
 
-def rgb_hard(s, fc, T, ops, pix):
+def nearest_face(fc, T, pix, cull):
+    """Per lane (one pixel each): the nearest face whose interior holds the pixel centre (front
+    faces only with ``cull``) and whether there is one: ``(face, has)``, face 0 where none. No AD:
+    the choice is piecewise constant (its values are differentiated where the caller uses them)."""
     px, py = pix.px, pix.py[0]
-    cull = s.cull_backfaces
 
     def body(w, bits, best, arg):
         f, w, bits = pix.next_face(w, bits)
@@ -872,7 +874,13 @@ def rgb_hard(s, fc, T, ops, pix):
         _, _, _, arg = dr.while_loop((*pix.start(), dr.full(T.Float, math.inf, pix.n), dr.full(T.UInt32, _NONE, pix.n)),
                                      lambda w, bits, b, a: bits != 0, body, labels=("w", "bits", "best", "arg"))
     has = arg != _NONE
-    _, col = shade_pair(fc, T, dr.select(has, arg, 0), px, py, s)
+    return dr.select(has, arg, 0), has
+
+
+def rgb_hard(s, fc, T, ops, pix):
+    px, py = pix.px, pix.py[0]
+    f, has = nearest_face(fc, T, pix, s.cull_backfaces)
+    _, col = shade_pair(fc, T, f, px, py, s)
     return [dr.select(has, col[c], s.background[c]) for c in range(3)]
 
 
@@ -990,23 +998,7 @@ def rasterize(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np):
     bins = Bins(fc, H, W, 0.0, T)
     pix = Pixels(T, fc.B, H, W, bins)
     px, py = pix.px, pix.py[0]
-    cull = settings.cull_backfaces
-
-    def body(w, bits, best, arg):
-        f, w, bits = pix.next_face(w, bits)
-        _, inside = signed_distance(fc, T, f, px, py)
-        if cull:
-            inside = inside & dr.gather(T.Bool, fc.front, f)
-        sh = [dr.gather(T.Float, a, f) for a in fc.shade[:12]]
-        _, depth = _bary_depth(fc, T, sh, px, py)
-        better = inside & (depth < best)
-        return w, bits, dr.select(better, depth, best), dr.select(better, f, arg)
-
-    with dr.suspend_grad():
-        _, _, _, arg = dr.while_loop((*pix.start(), dr.full(T.Float, math.inf, pix.n), dr.full(T.UInt32, _NONE, pix.n)),
-                                     lambda w, bits, b, a: bits != 0, body, labels=("w", "bits", "best", "arg"))
-    has = arg != _NONE
-    f = dr.select(has, arg, 0)
+    f, has = nearest_face(fc, T, pix, settings.cull_backfaces)
     sh = [dr.gather(T.Float, a, f) for a in fc.shade]
     b, depth = _bary_depth(fc, T, sh, px, py)
     nr = fc.normal_row
