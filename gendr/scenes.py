@@ -472,6 +472,23 @@ def get_scene(name: str, **kwargs) -> Mesh:
     return SCENES[name](**kwargs)
 
 
+def _trimesh_load(path):
+    """``(path as str, trimesh.Trimesh)`` of a mesh file, scenes concatenated, as stored (no
+    processing); typed errors naming the path (missing, not a file, unreadable, no trimesh)."""
+    p = os.fspath(path)
+    if not os.path.isfile(p):
+        raise InputValueError(f"mesh file {p!r} does not exist" if not os.path.exists(p)
+                              else f"mesh path {p!r} is not a file")
+    try:
+        import trimesh
+    except ImportError as e:  # pragma: no cover - trimesh is a dev dependency
+        raise BackendUnavailableError(f"reading mesh file {p!r} needs trimesh (pip install trimesh): {e}") from None
+    try:
+        return p, trimesh.load(p, force="mesh", process=False)
+    except Exception as e:  # trimesh raises many kinds
+        raise InputValueError(f"cannot read mesh file {p!r}: {type(e).__name__}: {e}") from None
+
+
 def load_mesh(path) -> Mesh:
     """Read a triangle mesh file (OBJ, PLY, STL, OFF, GLB/GLTF, ... anything trimesh reads).
 
@@ -487,18 +504,7 @@ def load_mesh(path) -> Mesh:
     >>> load_mesh(path)
     Mesh(V=3, F=1)
     """
-    p = os.fspath(path)
-    if not os.path.isfile(p):
-        raise InputValueError(f"mesh file {p!r} does not exist" if not os.path.exists(p)
-                              else f"mesh path {p!r} is not a file")
-    try:
-        import trimesh
-    except ImportError as e:  # pragma: no cover - trimesh is a dev dependency
-        raise BackendUnavailableError(f"reading mesh file {p!r} needs trimesh (pip install trimesh): {e}") from None
-    try:
-        loaded = trimesh.load(p, force="mesh", process=False)
-    except Exception as e:  # trimesh raises many kinds
-        raise InputValueError(f"cannot read mesh file {p!r}: {type(e).__name__}: {e}") from None
+    p, loaded = _trimesh_load(path)
     faces = getattr(loaded, "faces", None)
     vertices = getattr(loaded, "vertices", None)
     if faces is None or vertices is None or len(faces) == 0:
@@ -650,18 +656,7 @@ def load_textured_mesh(path) -> TexturedMesh:
     per-vertex uvs trimesh makes (it splits vertices along uv seams, so ``uv_faces`` = ``faces``) and
     the base-colour image as float albedo [Ht, Wt, 3|4] in [0, 1] (8-bit values / 255, not
     sRGB-decoded). Raises InputValueError naming the path when the file has no uvs or no image."""
-    p = os.fspath(path)
-    if not os.path.isfile(p):
-        raise InputValueError(f"mesh file {p!r} does not exist" if not os.path.exists(p)
-                              else f"mesh path {p!r} is not a file")
-    try:
-        import trimesh
-    except ImportError as e:  # pragma: no cover - trimesh is a dev dependency
-        raise BackendUnavailableError(f"reading mesh file {p!r} needs trimesh (pip install trimesh): {e}") from None
-    try:
-        loaded = trimesh.load(p, force="mesh", process=False)
-    except Exception as e:
-        raise InputValueError(f"cannot read mesh file {p!r}: {type(e).__name__}: {e}") from None
+    p, loaded = _trimesh_load(path)
     visual = getattr(loaded, "visual", None)
     uv = getattr(visual, "uv", None)
     if uv is None or len(uv) != len(loaded.vertices):
