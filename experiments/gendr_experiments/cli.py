@@ -285,13 +285,23 @@ def cmd_sweep(a) -> int:
     return 0
 
 
+def _results(files, experiment=None) -> list[dict]:
+    """The rows of results files (of one experiment, if given)."""
+    from .sweep import load_rows
+    return [r for f in files or [] for r in load_rows(f) if experiment is None or r["experiment"] == experiment]
+
+
+def _no_rows(files, what="rows") -> int:
+    print(f"{PROG}: error: no {what} in {files}", file=sys.stderr)
+    return 2
+
+
 def cmd_verify(a) -> int:
-    from .sweep import load_rows, verify_rows
+    from .sweep import verify_rows
     _apply_data(a)
-    rows = [r for f in a.results for r in load_rows(f)]
+    rows = _results(a.results)
     if not rows:
-        print(f"{PROG}: error: no rows in {a.results}", file=sys.stderr)
-        return 2
+        return _no_rows(a.results)
     report = verify_rows(rows, sample=a.sample, seed=a.seed, tolerance=a.tolerance)
     print(f"{'key':16s} {'label':40s} {'stored':>9s} {'now':>9s} {'drift':>9s} {'tol':>6s} code")
     for v in report:
@@ -309,12 +319,9 @@ def cmd_verify(a) -> int:
 
 def cmd_findings(a) -> int:
     from .findings import findings_markdown, pose_similarity, shape_findings
-    from .sweep import load_rows
-    shape = [r for f in a.results for r in load_rows(f) if r["experiment"] == "shape"]
-    pose = [r for f in (a.pose or []) for r in load_rows(f) if r["experiment"] == "pose"]
+    shape, pose = _results(a.results, "shape"), _results(a.pose, "pose")
     if not shape:
-        print(f"{PROG}: error: no shape rows in {a.results}", file=sys.stderr)
-        return 2
+        return _no_rows(a.results, "shape rows")
     found = shape_findings(shape, noise=a.noise)
     if pose:
         found.append(pose_similarity(shape, pose))
@@ -325,11 +332,9 @@ def cmd_findings(a) -> int:
 
 def cmd_figures(a) -> int:
     from .figures import make_figures
-    from .sweep import load_rows
-    rows = [r for f in a.results for r in load_rows(f)]
+    rows = _results(a.results)
     if not rows:
-        print(f"{PROG}: error: no rows in {a.results}", file=sys.stderr)
-        return 2
+        return _no_rows(a.results)
     for p in make_figures(rows, a.output, experiment=a.experiment, fraction=a.fraction):
         print(p)
     return 0
@@ -337,18 +342,16 @@ def cmd_figures(a) -> int:
 
 def cmd_cost(a) -> int:
     from .cost import STUDIES, cost_report, format_report
-    from .sweep import load_rows
     _apply_data(a)
-    rows = [r for f in a.results for r in load_rows(f)]
+    rows = _results(a.results)
     if not rows:
-        print(f"{PROG}: error: no rows in {a.results}", file=sys.stderr)
-        return 2
+        return _no_rows(a.results)
     studies = [s.strip() for s in a.studies.split(",") if s.strip()]
     bad = [s for s in studies if s not in STUDIES]
     if bad:
         print(f"{PROG}: error: unknown studies {bad}; known: {', '.join(STUDIES)}", file=sys.stderr)
         return 2
-    held = [r for f in (a.holdout or []) for r in load_rows(f)]
+    held = _results(a.holdout)
     report = cost_report(rows, studies=studies, hours=a.hours, efficiency=a.efficiency, holdout=held)
     print(format_report(report))
     if a.json:

@@ -23,7 +23,7 @@ __all__ = ["instance_from_config", "grid_instance", "make_renderer", "renderer_t
            "soft_iou_loss", "iou_loss_per_view", "mesh_laplacian", "laplacian_loss", "flatten_edges",
            "flatten_loss", "rotation_angle_deg", "axis_angle_to_matrix", "config_hash", "versions",
            "log_tau_schedule", "PAPER_DATA_ENV", "paper_data_dir", "resolve_data_path", "load_template",
-           "source_hash", "provenance", "file_digest", "preset_config"]
+           "source_hash", "provenance", "file_digest", "data_digests", "preset_config"]
 
 
 # ------------------------------------------------------------------------------------------------
@@ -145,6 +145,23 @@ def _merged(mesh):
     rank = np.empty_like(order)
     rank[order] = np.arange(len(order))
     return Mesh(v[np.sort(first)], rank[np.asarray(inverse).reshape(-1)][np.asarray(mesh.faces)])
+
+
+def data_digests(cfg: dict) -> dict:
+    """sha256 prefixes of the data files a config reads (``target``, ``template``; built-in scenes
+    and the icosphere template have none)."""
+    from gendr import scenes
+    from .targets import images_path, is_images_target
+    out = {}
+    if is_images_target(cfg.get("target")):
+        out["target"] = file_digest(images_path(cfg["target"]))
+    for key in ("target", "template"):
+        name = cfg.get(key)
+        if key in out:
+            continue
+        if isinstance(name, str) and name not in scenes.SCENES and name != "icosphere":
+            out[key] = file_digest(resolve_data_path(name))
+    return out
 
 
 def load_template(spec: str, scale: float):

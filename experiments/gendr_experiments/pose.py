@@ -49,9 +49,8 @@ import gendr
 
 from gendr.errors import ParameterError
 
-from .common import (axis_angle_to_matrix, file_digest, instance_from_config, iou_loss_per_view,
+from .common import (axis_angle_to_matrix, data_digests, instance_from_config, iou_loss_per_view,
                      load_target_mesh, log_tau_schedule, make_renderer, preset_config, random_rotation,
-                     resolve_data_path,
                      rotation_about, rotation_angle_deg)
 
 __all__ = ["POSE_DEFAULTS", "POSE_PRESETS", "pose_config", "run_pose", "PoseProblem", "LookAtPoseProblem",
@@ -362,15 +361,13 @@ def run_pose(config: dict | None = None, *, callback=None, backend_options=None,
             break
         losses.append(loss)
     out = prob.result()
-    target = prob.cfg["target"]
-    from gendr import scenes
     out.update({
         "loss_first": losses[0] if losses else float("nan"),
         "loss_last": losses[-1] if losses else float("nan"),
         "steps_done": len(losses),
         "nonfinite": nonfinite,
         "instance_label": prob.label,
-        "data": {} if target in scenes.SCENES else {"target": file_digest(resolve_data_path(target))},
+        "data": data_digests(prob.cfg),
         "seconds": time.perf_counter() - t0,
     })
     return out

@@ -33,10 +33,10 @@ import gendr
 
 from gendr.errors import ParameterError
 
-from .targets import images_path, is_images_target, load_image_target
-from .common import (file_digest, flatten_edges, flatten_loss, instance_from_config, laplacian_loss,
+from .targets import is_images_target, load_image_target
+from .common import (data_digests, flatten_edges, flatten_loss, instance_from_config, laplacian_loss,
                      load_target_mesh, load_template, make_renderer, mesh_laplacian, preset_config, renderer_tau,
-                     resolve_data_path, soft_iou_loss, iou_loss_per_view)
+                     soft_iou_loss, iou_loss_per_view)
 
 __all__ = ["SHAPE_DEFAULTS", "SHAPE_PRESETS", "shape_config", "run_shape", "ShapeProblem", "SphereDeformer", "shape_cameras",
            "shape_target_views"]
@@ -152,21 +152,6 @@ def shape_template(cfg: dict):
     if spec == "icosphere":
         spec = f"icosphere:{int(cfg['subdivisions'])}"
     return load_template(spec, float(cfg["template_scale"]))
-
-
-def data_digests(cfg: dict) -> dict:
-    """sha256 prefixes of the mesh files a config reads (built-in scenes have none)."""
-    from gendr import scenes
-    out = {}
-    if is_images_target(cfg.get("target")):
-        out["target"] = file_digest(images_path(cfg["target"]))
-    for key in ("target", "template"):
-        name = cfg.get(key)
-        if key in out:
-            continue
-        if isinstance(name, str) and name not in scenes.SCENES and name != "icosphere":
-            out[key] = file_digest(resolve_data_path(name))
-    return out
 
 
 class ShapeProblem:
