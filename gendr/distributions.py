@@ -13,12 +13,12 @@ validated parameters and the ``reversed`` / ``shift`` / ``squared`` variants (DE
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, replace
 from functools import lru_cache
 from typing import Callable
 
-from .ops import numpy_ops
-from .params import Param, Registry, validate_params, POSITIVE
+from .ops import NumpyOps, numpy_ops
+from .params import Learnable, LearnableParams, Param, Registry, validate_params, POSITIVE
 from .errors import ParameterError
 
 #: how fast F → 0 (left) or → 1 (right) at an end of the support
@@ -54,7 +54,7 @@ DISTRIBUTIONS = Registry("distribution")
 
 
 @dataclass(frozen=True)
-class Distribution:
+class Distribution(LearnableParams):
     """A validated distribution setting. Frozen and hashable; build it with :func:`distribution`.
 
     Its methods (``cdf``, ``pdf``, ``coverage``, ...) take an ``ops`` namespace (``gendr.ops.numpy_ops``
@@ -79,6 +79,7 @@ class Distribution:
     reversed: bool = False
     shift: float = 0.0
     squared: bool = False
+    _owner_kind = "distribution"
 
     @property
     def name(self) -> str:
@@ -179,7 +180,8 @@ class Distribution:
         Cached: renderers ask for the same levels (eps) at every render."""
         if not 0.0 <= q <= 1.0:
             raise ParameterError(f"quantile level q={q!r} must lie in [0, 1]")
-        return _cached_quantile(self, float(q))
+        plain = self if not self.learnable else replace(self, params=tuple((k, float(v)) for k, v in self.params))
+        return _cached_quantile(plain, float(q))  # (keyed on floats: the cache holds no tensor)
 
     def _quantile(self, q: float) -> float:
         lo, hi = self.support()
@@ -250,9 +252,11 @@ def distribution(name, *, reversed: bool = False, shift: float = 0.0, squared: b
         reversed: mirror the CDF, F_rev(x) = 1 − F(−x) (one-sided families covering outside).
         shift: finite float added to the argument, F(x + shift).
         squared: use the argument d·|d|/τ instead of d/τ (τ then in squared screen units).
-        **params: the family's parameters as Python floats (e.g. ``shape`` of ``gamma``).
+        **params: the family's parameters as Python floats (e.g. ``shape`` of ``gamma``), or as
+            0-d torch tensors / Dr.Jit arrays that require grad: *learnable* (``.learnable``),
+            both backends return ∂/∂shape, and the value is re-checked at every render.
 
-    Returns a frozen, hashable :class:`Distribution` (plain Python numbers; no arrays, no device).
+    Returns a frozen, hashable :class:`Distribution`.
 
     >>> import gendr
     >>> gendr.distribution("gamma", shape=0.5, reversed=True, squared=True)
@@ -267,7 +271,7 @@ def distribution(name, *, reversed: bool = False, shift: float = 0.0, squared: b
             raise ParameterError("options cannot be combined with an existing Distribution object")
         return name
     fam = DISTRIBUTIONS.lookup(name)
-    values = validate_params(f"distribution {name!r}", fam.params, params)
+    values = validate_params(f"distribution {name!r}", fam.params, params, learnable=True)
     try:
         shift = float(shift)
     except (TypeError, ValueError):
@@ -746,39 +750,105 @@ def _gamma_log_pdf(ops, x, k):
 
 
 def _gamma_pdf(ops, x, shape):
-    return ops.where(x > 0.0, ops.exp(_gamma_log_pdf(ops, x, shape)), 0.0)
+    return ops.where(x > 0.0, ops.exp(_gamma_log_pdf(ops, x, float(shape))), 0.0)
+
+
+def _digamma(k: float) -> float:
+    """ψ(k) = d log Γ(k)/dk for a float k > 0: recurrence up to k >= 16, then the asymptotic
+    series to the k⁻¹⁰ term (truncation error < 1e-16 there)."""
+    acc = 0.0
+    while k < 16.0:
+        acc -= 1.0 / k
+        k += 1.0
+    r = 1.0 / (k * k)
+    return acc + math.log(k) - 0.5 / k - r * (1 / 12 - r * (1 / 120 - r * (1 / 252 - r * (1 / 240 - r / 132))))
+
+
+def _gamma_shape_derivatives(ops, x, k):
+    """(use_series, ∂ log P/∂k, ∂ log Q/∂k, log P, log Q) of the regularized incomplete gamma functions at x > 0 (0
+    elsewhere), by differentiating the same truncated series and continued fraction term by term:
+
+    series: log P = k log x − x − log Γ(k+1) + log Σ_n a_n, a_n = Π_{j≤n} x/(k+j), with
+            ∂a_n/∂k = −a_n Σ_{j≤n} 1/(k+j);
+    fraction: log Q = k log x − x − log Γ(k) − log t, with ∂t/∂k from the recurrence of t.
+    The other function follows from P + Q = 1 (∂ log P/∂k = −(Q/P) ∂ log Q/∂k)."""
+    x = ops.detach(x)
+    use_series, log_p, log_q, xs, total, xc, t_final = _gamma_parts(ops, x, k)
+    term = ops.full_like(xs, 1.0)
+    dtotal = ops.full_like(xs, 0.0)
+    harmonic = 0.0
+    for n in range(1, _GAMMA_SERIES_TERMS):
+        term = term * xs / (k + n)
+        harmonic += 1.0 / (k + n)
+        dtotal = dtotal - term * harmonic
+    dlog_p_series = ops.log(xs) - _digamma(k + 1.0) + dtotal / total
+    t = xc + (2.0 * _GAMMA_CF_DEPTH + 1.0 - k)
+    dt = ops.full_like(xc, -1.0)
+    for n in range(_GAMMA_CF_DEPTH, 0, -1):
+        # t_n = x + 2n − 1 − k − n(n − k)/t_{n+1}
+        dt = -1.0 + n / t + (n * (n - k)) * dt / (t * t)
+        t = xc + (2.0 * n - 1.0 - k) - (n * (n - k)) / t
+    dlog_q_cf = ops.log(xc) - _digamma(k) - dt / t
+    dlog_p = ops.where(use_series, dlog_p_series, -ops.exp(log_q - log_p) * dlog_q_cf)
+    dlog_q = ops.where(use_series, -ops.exp(log_p - log_q) * dlog_p_series, dlog_q_cf)
+    pos = x > 0.0
+    return use_series, ops.where(pos, dlog_p, 0.0), ops.where(pos, dlog_q, 0.0), log_p, log_q
+
+
+def _with_shape_gradient(ops, value, k, derivative):
+    """``value`` (computed with k as a float) plus ``(k − detach k)·derivative``: the value is
+    unchanged and ∂/∂k = ``derivative`` when k is a :class:`Learnable` (nothing added otherwise)."""
+    if not isinstance(k, Learnable) or isinstance(ops, NumpyOps):
+        return value
+    ka = k.array
+    d = derivative()
+    # a non-finite derivative (none is expected) must not turn the value into NaN (0·inf)
+    return value + (ka - ops.detach(ka)) * ops.where(d - d == 0.0, d, 0.0)
 
 
 def _gamma_cdf(ops, x, shape):
+    k = float(shape)  # (a Learnable is a float subclass; Dr.Jit takes only plain floats)
+
     def value(x):
-        use_series, log_p, log_q = _gamma_parts(ops, x, shape)[:3]
+        use_series, log_p, log_q = _gamma_parts(ops, x, k)[:3]
         p = ops.where(use_series, ops.exp(log_p), -ops.expm1(log_q))
         return ops.where(x > 0.0, p, 0.0)
-    return ops.with_derivative(value, lambda x: _gamma_pdf(ops, x, shape), x)
+
+    def shape_derivative():  # ∂P/∂k = P ∂log P/∂k = −Q ∂log Q/∂k (the one that does not cancel)
+        use_series, dlog_p, dlog_q, log_p, log_q = _gamma_shape_derivatives(ops, x, k)
+        return ops.where(use_series, ops.exp(log_p) * dlog_p, -ops.exp(log_q) * dlog_q)
+    return _with_shape_gradient(ops, ops.with_derivative(value, lambda x: _gamma_pdf(ops, x, k), x),
+                                shape, shape_derivative)
 
 
 def _gamma_log_sf(ops, x, shape):
+    k = float(shape)
+
     def value(x):
-        return ops.where(x > 0.0, _gamma_parts(ops, x, shape)[2], 0.0)
+        return ops.where(x > 0.0, _gamma_parts(ops, x, k)[2], 0.0)
 
     def derivative(x):
         # d log Q/dx = −f/Q; in the fraction's range that is exactly −t/x (no over/underflow)
-        use_series, _, log_q, _, _, xc, t = _gamma_parts(ops, x, shape)
-        d = ops.where(use_series, -ops.exp(_gamma_log_pdf(ops, x, shape) - log_q), -t / xc)
+        use_series, _, log_q, _, _, xc, t = _gamma_parts(ops, x, k)
+        d = ops.where(use_series, -ops.exp(_gamma_log_pdf(ops, x, k) - log_q), -t / xc)
         return ops.where(x > 0.0, d, 0.0)
-    return ops.with_derivative(value, derivative, x)
+    return _with_shape_gradient(ops, ops.with_derivative(value, derivative, x), shape,
+                                lambda: _gamma_shape_derivatives(ops, x, k)[2])
 
 
 def _gamma_log_cdf(ops, x, shape):
+    k = float(shape)
+
     def value(x):
-        return ops.where(x > 0.0, _gamma_parts(ops, x, shape)[1], -math.inf)
+        return ops.where(x > 0.0, _gamma_parts(ops, x, k)[1], -math.inf)
 
     def derivative(x):
         # d log P/dx = f/P; in the series' range that is exactly k/(x·Σ)
-        use_series, log_p, _, xs, total, _, _ = _gamma_parts(ops, x, shape)
-        d = ops.where(use_series, shape / (xs * total), ops.exp(_gamma_log_pdf(ops, x, shape) - log_p))
+        use_series, log_p, _, xs, total, _, _ = _gamma_parts(ops, x, k)
+        d = ops.where(use_series, k / (xs * total), ops.exp(_gamma_log_pdf(ops, x, k) - log_p))
         return ops.where(x > 0.0, d, 0.0)
-    return ops.with_derivative(value, derivative, x)
+    return _with_shape_gradient(ops, ops.with_derivative(value, derivative, x), shape,
+                                lambda: _gamma_shape_derivatives(ops, x, k)[1])
 
 
 DISTRIBUTIONS.add(DistributionFamily(

@@ -17,6 +17,7 @@ Members every namespace provides (all elementwise, broadcasting like NumPy):
 ``clamp(x, lo, hi)`` elementwise, ``lo``/``hi`` Python floats or None
 ``full_like(x, v)`` an array shaped like ``x`` filled with the Python float ``v``
 ``pi inf``         Python floats
+``detach(x)``      ``x`` without gradient tracking (NumPy: ``x`` itself)
 ``with_derivative(value, derivative, x)``  ``value(x)`` whose derivative w.r.t. ``x`` is
                    ``derivative(x)``; the backend must not differentiate through ``value`` (used
                    where ``value`` is an iterative series, e.g. the incomplete gamma function)
@@ -86,6 +87,10 @@ class NumpyOps:
     @staticmethod
     def with_derivative(value, derivative, x):
         return value(x)
+
+    @staticmethod
+    def detach(x):
+        return x
 
     @staticmethod
     def asarray(x):

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable, Mapping
 
 from .errors import ParameterError, UnknownNameError
@@ -80,6 +80,47 @@ def array_value(owner: str, name: str, raw) -> float:
         return float(raw)
     except (TypeError, ValueError, IndexError, RuntimeError):
         raise ParameterError(f"{owner} parameter {name}={raw!r} must be a number") from None
+
+
+class LearnableParams:
+    """Learnable-parameter bookkeeping shared by the frozen specs :class:`~gendr.TConorm` and
+    :class:`~gendr.Distribution`: both hold ``family`` (with ``params``, the declared
+    :class:`Param` list) and ``params``, a tuple of ``(name, value)``; a value given as a torch
+    tensor / Dr.Jit array is a :class:`Learnable`. ``_owner`` names the spec in messages."""
+
+    _owner_kind = ""
+
+    @property
+    def learnable(self) -> dict:
+        """``{name: array}`` of the parameters given as torch tensors / Dr.Jit arrays (empty: none).
+        Both backends return their gradients."""
+        return {k: v.array for k, v in self.params if isinstance(v, Learnable)}
+
+    def with_arrays(self, arrays):
+        """The same setting with the learnable parameters' arrays replaced by ``arrays``
+        (``{name: array}``, e.g. cast to the render dtype, or detached), values unchanged."""
+        if not arrays:
+            return self
+        return replace(self, params=tuple((k, Learnable(float(v), arrays[k]) if k in arrays else v)
+                                          for k, v in self.params))
+
+    def refreshed(self):
+        """Re-read the learnable parameters' current values (an optimizer may have changed them in
+        place) and check their domain: :class:`~gendr.errors.ParameterError` naming the value if
+        one left it. Returns ``self`` when there is nothing learnable."""
+        if not self.learnable:
+            return self
+        owner = f"{self._owner_kind} {self.name!r}"
+        out = []
+        for prm, (k, v) in zip(self.family.params, self.params):
+            if isinstance(v, Learnable):
+                value = array_value(owner, k, v.array)
+                if not prm.constraint.check(value):
+                    raise ParameterError(f"{owner} parameter {k}={value!r} (a learnable {type(v.array).__name__}, "
+                                         f"at render time) is out of domain: expected {prm.constraint.description}")
+                v = Learnable(value, v.array)
+            out.append((k, v))
+        return replace(self, params=tuple(out))
 
 
 def validate_params(owner: str, declared: tuple[Param, ...], given: Mapping[str, object],

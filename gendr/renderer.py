@@ -153,7 +153,8 @@ class Renderer:
     Parameters
     ----------
     distribution : str or Distribution
-        e.g. ``"logistic"`` or ``gendr.distribution("gamma", shape=0.5, reversed=True)``.
+        e.g. ``"logistic"`` or ``gendr.distribution("gamma", shape=0.5, reversed=True)``. A shape
+        given as a scalar tensor that requires grad is learnable, like a T-conorm's p (below).
     tconorm : str or TConorm
         e.g. ``"probabilistic"`` or ``gendr.tconorm("yager", p=2)``. A parameter given as a scalar
         tensor that requires grad (``gendr.tconorm("yager", p=torch.tensor(2.0, requires_grad=True))``)
@@ -206,7 +207,7 @@ class Renderer:
     :meth:`rasterize` return arrays of the backend on the inputs' device (torch: CPU or CUDA, as
     the vertices; Dr.Jit: its LLVM/CUDA variant) and are differentiable w.r.t. every float input
     given as a tensor that requires grad (vertices, colours, texture, uvs, camera parameters, a
-    tensor ``tau``, a learnable T-conorm parameter).
+    tensor ``tau``, a learnable T-conorm or distribution parameter).
 
     Examples
     --------
@@ -289,8 +290,8 @@ class Renderer:
         Returns [B, H, W, 4] in the vertices' dtype: RGB, then alpha (the aggregated coverage).
         A backend array on the vertices' device (torch: CPU/CUDA tensor; Dr.Jit: TensorXf/
         TensorXf64); NumPy inputs are converted to the backend (torch: CPU). Differentiable w.r.t.
-        vertices, colours, texture, uvs, the camera's tensor parameters, a tensor ``tau`` and a
-        learnable T-conorm parameter (whichever require grad); ``faces`` and ``uv_faces`` are not.
+        vertices, colours, texture, uvs, the camera's tensor parameters, a tensor ``tau`` and the
+        learnable T-conorm and distribution parameters (whichever require grad); ``faces`` and ``uv_faces`` are not.
         Pixel (row i, column j) is sampled at its centre; row 0 is the top of the image.
 
         Raises (:mod:`gendr.errors`): ShapeError (shapes above), DTypeError (integer vertices or
@@ -331,8 +332,9 @@ class Renderer:
                 raise InputValueError(f"{name} must be finite; {name}{list(bad[0])} = {bad[1]}")
             colors, per_face = c, name == "face_colors"
         settings = self.settings
-        if settings.tconorm.learnable:  # re-read (and re-check) a learnable p: an optimizer moves it
-            settings = replace(settings, tconorm=settings.tconorm.refreshed())
+        if settings.tconorm.learnable or settings.distribution.learnable:  # re-read and re-check
+            settings = replace(settings, tconorm=settings.tconorm.refreshed(),  # (an optimizer moves them)
+                               distribution=settings.distribution.refreshed())
         if tex is not None:
             return be.render(settings, verts, faces_a, camera, colors, per_face, texture=tex)
         return be.render(settings, verts, faces_a, camera, colors, per_face)

@@ -46,7 +46,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 from .params import (Param, Registry, validate_params, POSITIVE, NONNEGATIVE, NEGATIVE, POSITIVE_NOT_ONE,
-                     Learnable, array_of as _a, array_value)
+                     Learnable, LearnableParams, array_of as _a)
 from .errors import ParameterError
 
 ARCHIMEDEAN, MAX, HARD_OR, MEAN = "archimedean", "max", "or", "mean"
@@ -78,7 +78,7 @@ TCONORMS = Registry("tconorm")
 
 
 @dataclass(frozen=True)
-class TConorm:
+class TConorm(LearnableParams):
     """A validated T-conorm setting; build it with :func:`tconorm`.
 
     Its methods (``binary``, ``aggregate``, ...) take an ``ops`` namespace (``gendr.ops.numpy_ops``
@@ -97,6 +97,7 @@ class TConorm:
 
     family: TConormFamily
     params: tuple[tuple[str, float], ...] = ()
+    _owner_kind = "tconorm"
 
     @property
     def name(self) -> str:
@@ -124,41 +125,6 @@ class TConorm:
         """True when the n-ary aggregate is :meth:`from_sum` of a per-pixel sum of
         :meth:`pair_term` values (archimedean T-conorms and the mean)."""
         return self.kind in SUM_KINDS
-
-    # --- learnable parameters (see "Learnable p" in docs/tconorms.md) ---
-    @property
-    def learnable(self) -> dict:
-        """``{name: array}`` of the parameters given as torch tensors / Dr.Jit arrays (empty: none).
-
-        Their gradients are computed by both backends (∂A/∂p through the generator, its inverse
-        and the per-pixel sum; DESIGN.md §4)."""
-        return {k: v.array for k, v in self.params if isinstance(v, Learnable)}
-
-    def with_arrays(self, arrays) -> "TConorm":
-        """The same setting with the learnable parameters' arrays replaced by ``arrays``
-        (``{name: array}``, e.g. cast to the render dtype, or detached), values unchanged."""
-        if not arrays:
-            return self
-        return TConorm(self.family, tuple((k, Learnable(float(v), arrays[k]) if k in arrays else v)
-                                          for k, v in self.params))
-
-    def refreshed(self) -> "TConorm":
-        """Re-read the learnable parameters' current values (an optimizer may have changed them in
-        place) and check their domain: :class:`~gendr.errors.ParameterError` naming the value if
-        one left it. Returns ``self`` when there is nothing learnable."""
-        if not self.learnable:
-            return self
-        out = []
-        for prm, (k, v) in zip(self.family.params, self.params):
-            if isinstance(v, Learnable):
-                owner = f"tconorm {self.name!r}"
-                value = array_value(owner, k, v.array)
-                if not prm.constraint.check(value):
-                    raise ParameterError(f"{owner} parameter {k}={value!r} (a learnable {type(v.array).__name__}, "
-                                         f"at render time) is out of domain: expected {prm.constraint.description}")
-                v = Learnable(value, v.array)
-            out.append((k, v))
-        return TConorm(self.family, tuple(out))
 
     def label(self) -> str:
         if not self.params:

@@ -236,9 +236,10 @@ class DrJitBackend:
                     slots[name] = inp.data
         if _is_torch(tau):
             slots["tau"] = tau
-        for k, v in settings.tconorm.learnable.items():  # learnable T-conorm parameters (∂A/∂p)
-            if _is_torch(v):
-                slots["tcn:" + k] = v.reshape(())
+        for prefix, spec in (("tcn:", settings.tconorm), ("dist:", settings.distribution)):
+            for k, v in spec.learnable.items():  # learnable T-conorm / distribution parameters
+                if _is_torch(v):
+                    slots[prefix + k] = v.reshape(())
         for k, (v, _) in cam.items():
             if _is_torch(v):
                 slots["cam:" + k] = v
@@ -295,11 +296,15 @@ class DrJitBackend:
             raise ShapeError(f"vertex batch size {Bv} and camera batch size {Bc} do not match")
         t = wrapped.get("tau", tau)
         tau_arr = self._opaque(self._param(t, T)[0], T)
-        learn = settings.tconorm.learnable
-        if learn:  # the T-conorm's learnable parameters as width-1 AD arrays of the render dtype
+        learn = settings.tconorm.learnable or settings.distribution.learnable
+        if learn:  # the learnable parameters as width-1 AD arrays of the render dtype
             from dataclasses import replace
-            arrays = {k: self._opaque(self._param(wrapped.get("tcn:" + k, v), T)[0], T) for k, v in learn.items()}
-            settings = replace(settings, tconorm=settings.tconorm.with_arrays(arrays))
+
+            def arrays(prefix, spec):
+                return {k: self._opaque(self._param(wrapped.get(prefix + k, v), T)[0], T)
+                        for k, v in spec.learnable.items()}
+            settings = replace(settings, tconorm=settings.tconorm.with_arrays(arrays("tcn:", settings.tconorm)),
+                               distribution=settings.distribution.with_arrays(arrays("dist:", settings.distribution)))
         H, W = settings.image_size
         if gbuffer:
             out, B = raster.rasterize(settings, camera, ops, T, P, Bc, vflat, Bv, V, faces)
@@ -318,7 +323,7 @@ class DrJitBackend:
             tex = (tflat, Bt, Ht, Wt, C, uflat, Bu, Tn, T.UInt32(np.asarray(uvf).reshape(-1).astype(np.uint32)))
             out, B = raster.render(settings, camera, ops, T, P, Bc, vflat, Bv, V, faces, col, per_face, tau_arr, tex)
             return T.Tensor(out, shape=(B, H, W, 4))
-        if self.frozen is not None and faces.shape[0] > 0 and not learn:  # (frozen: p is a constant)
+        if self.frozen is not None and faces.shape[0] > 0 and not learn:  # (frozen: p and the shape are constants)
             out, B = self.frozen.render(settings, camera, T, ops, P, Bc, vflat, Bv, V, faces, col, per_face, tau_arr)
         else:
             out, B = raster.render(settings, camera, ops, T, P, Bc, vflat, Bv, V, faces, col, per_face, tau_arr)

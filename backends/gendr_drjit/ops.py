@@ -53,6 +53,7 @@ class DrJitOps:
     erf = staticmethod(dr.erf)
     lgamma = staticmethod(dr.lgamma)
     abs = staticmethod(dr.abs)
+    detach = staticmethod(dr.detach)
 
     def _f(self, x):
         return x if isinstance(x, self.Float) else self.Float(x)

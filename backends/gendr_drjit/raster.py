@@ -670,12 +670,12 @@ class _Ctx:
     the op outputs) would close a reference cycle through C++ that Python's collector cannot see —
     every render leaked its graph (~4 MB per shape step) until the process ended."""
 
-    def __init__(self, s, fc, T, ops, pix, tau_grad, resid, p_grad=False):
-        # settings with the learnable T-conorm parameters detached (AlphaSum gets them as input "tp")
-        learn = s.tconorm.learnable
-        if learn:
-            s = replace(s, tconorm=s.tconorm.with_arrays({k: dr.detach(v) for k, v in learn.items()}))
-        self.p_grad = p_grad
+    def __init__(self, s, fc, T, ops, pix, tau_grad, resid, p_grad=False, shape_grad=False):
+        # settings with the learnable parameters detached (AlphaSum gets them as inputs "tp", "dp")
+        s = replace(s, tconorm=s.tconorm.with_arrays({k: dr.detach(v) for k, v in s.tconorm.learnable.items()}),
+                    distribution=s.distribution.with_arrays(
+                        {k: dr.detach(v) for k, v in s.distribution.learnable.items()}))
+        self.p_grad, self.shape_grad = p_grad, shape_grad
         edges = Faces()  # the detached per-face data the loops read
         edges.K, edges.Xd, edges.Yd, edges.orient, edges.cull_lo = fc.K, fc.Xd, fc.Yd, fc.orient, fc.cull_lo
         edges.grad_xy = bool(fc.ad) and dr.grad_enabled(fc.Xall)
@@ -696,8 +696,8 @@ class AlphaSum(dr.CustomOp):
     goes into a per-lane τ accumulator summed once after the loop. Same derivatives as Dr.Jit's
     generic reverse-mode sum loop (tests/test_drjit_freeze.py)."""
 
-    def eval(self, Xall, Yall, tau, tp, ctx):
-        self.ctx, self.tau, self.tp = ctx, tau, tp
+    def eval(self, Xall, Yall, tau, tp, dp, ctx):
+        self.ctx, self.tau, self.tp, self.dp = ctx, tau, tp, dp
         s, fc, T, ops, pix = ctx.parts
         if ctx.resid is not None:  # S and nsat of an earlier forward pass of the same inputs
             S, ctx.nsat = ctx.resid
@@ -724,12 +724,16 @@ class AlphaSum(dr.CustomOp):
         want_p = self.ctx.p_grad
         pname = next(iter(tcn.learnable), None)
         p_val = dr.detach(self.tp)
+        # a learnable distribution parameter (the gamma shape: the only family with one), likewise
+        want_k = self.ctx.shape_grad
+        kname = next(iter(dist.learnable), None)
+        k_val = dr.detach(self.dp)
         delta = [Float(g) for g in self.grad_out()]
         delta = [g if dr.width(g) == pix.n else dr.zeros(Float, pix.n) + g for g in delta]
         gX = dr.zeros(Float, fc.n_corners) if want_xy else None
         gY = dr.zeros(Float, fc.n_corners) if want_xy else None
 
-        def body(w, bits, gt, gp):
+        def body(w, bits, gt, gp, gk):
             f, w, bits = pix.next_face(w, bits)
             edges = _edge_setup(fc, T, f, pix.px)
             acc = [[Float(0.0), Float(0.0)] for _ in range(K)]  # (x, y) per corner, over the strip
@@ -755,14 +759,19 @@ class AlphaSum(dr.CustomOp):
                     _, gpp = _local_derivative(lambda pp: generator_terms(
                         dist, tcn.with_arrays({pname: pp}), ops, x, x_eps, x_cut)[0], Float(p_val))
                     gp = gp + dr.select(delta[r] != 0.0, delta[r] * gpp, 0.0)
+                if want_k:
+                    _, gkk = _local_derivative(lambda kk_: generator_terms(
+                        dist.with_arrays({kname: kk_}), tcn, ops, x, x_eps, x_cut)[0], Float(k_val))
+                    gk = gk + dr.select(delta[r] != 0.0, delta[r] * gkk, 0.0)
             if want_xy:
                 for k in range(K):
                     for g, v in ((gX, acc[k][0]), (gY, acc[k][1])):
                         dr.scatter_reduce(dr.ReduceOp.Add, g, v, f * K + k, v != 0.0, mode=BWD_MODE)
-            return w, bits, gt, gp
+            return w, bits, gt, gp, gk
 
-        _, _, gt, gp = dr.while_loop((*pix.start(), dr.zeros(Float, pix.n), dr.zeros(Float, pix.n)),
-                                     lambda w, bits, gt, gp: bits != 0, body, labels=("w", "bits", "gt", "gp"))
+        zeros = [dr.zeros(Float, pix.n) for _ in range(3)]
+        _, _, gt, gp, gk = dr.while_loop((*pix.start(), *zeros), lambda w, bits, *acc: bits != 0, body,
+                                         labels=("w", "bits", "gt", "gp", "gk"))
         if want_xy:
             self.set_grad_in("Xall", gX)
             self.set_grad_in("Yall", gY)
@@ -770,6 +779,8 @@ class AlphaSum(dr.CustomOp):
             self.set_grad_in("tau", dr.sum(gt))
         if want_p:
             self.set_grad_in("tp", dr.sum(gp))
+        if want_k:
+            self.set_grad_in("dp", dr.sum(gk))
 
     def name(self):
         return "gendr alpha sum"
@@ -785,16 +796,19 @@ def alpha_archimedean(s, fc, T, ops, pix, pix1, tau, resid=None, keep_sums=False
     tcn = s.tconorm
     learn = list(tcn.learnable.values())
     p_ad = bool(learn) and dr.grad_enabled(learn[0])
-    ad = fc.ad or dr.grad_enabled(tau) or p_ad
+    shape = list(s.distribution.learnable.values())
+    k_ad = bool(shape) and dr.grad_enabled(shape[0])
+    ad = fc.ad or dr.grad_enabled(tau) or p_ad or k_ad
     if ad and not CUSTOM_BACKWARD:
         S, nsat = alpha_sum_generic(s, fc, T, ops, pix1, tau)
         S, nsat, pix = (S,), (nsat,), pix1
     elif ad:
         Xall = fc.Xall if fc.ad else dr.zeros(T.Float, 1)
         Yall = fc.Yall if fc.ad else dr.zeros(T.Float, 1)
-        ctx = _Ctx(s, fc, T, ops, pix, dr.grad_enabled(tau), resid, p_ad)  # (not a PyTree: passed through as is)
+        ctx = _Ctx(s, fc, T, ops, pix, dr.grad_enabled(tau), resid, p_ad, k_ad)  # (not a PyTree: passed as is)
         tp = learn[0] if learn else dr.zeros(T.Float, 1)
-        S = dr.custom(AlphaSum, Xall, Yall, tau, tp, ctx)
+        dp = shape[0] if shape else dr.zeros(T.Float, 1)
+        S = dr.custom(AlphaSum, Xall, Yall, tau, tp, dp, ctx)
         nsat = ctx.nsat
     elif resid is not None:
         S, nsat = resid

@@ -75,5 +75,9 @@ class TorchOps:
     def with_derivative(value, derivative, x):
         return _WithDerivative.apply(x, value, derivative)
 
+    @staticmethod
+    def detach(x):
+        return x.detach() if isinstance(x, torch.Tensor) else x
+
 
 torch_ops = TorchOps()

@@ -503,11 +503,11 @@ class SoftAlpha(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, X, Y, tau, plan, *tparams):
-        """``tparams``: the learnable T-conorm parameters (0-d tensors, in the order of
-        ``plan.settings.tconorm.learnable``); ∂A/∂p comes back for each."""
+        """``tparams``: the learnable parameters (0-d tensors, in the order of
+        :func:`learnable_tensors`: the T-conorm's, then the distribution's); ∂A/∂θ comes back for each."""
         s = plan.settings
-        dist, eps = s.distribution, s.eps
-        tcn = _bind(s.tconorm, tparams, detach=True)
+        eps = s.eps
+        dist, tcn = _bind(s, tparams, detach=True)
         x_cut = s.cutoff_argument(ops, tau.detach())
         H, W = s.image_size
         B, K, Wc = plan.fc.B, plan.fc.K, plan.Wc
@@ -546,11 +546,11 @@ class SoftAlpha(torch.autograd.Function):
         X, Y, tau, acc, A, *tparams = ctx.saved_tensors
         plan = ctx.plan
         s = plan.settings
-        dist, eps = s.distribution, s.eps
-        # the learnable parameters as fresh leaves: per-pair ∂g/∂p and the direct ∂g⁻¹/∂p by autograd
+        eps = s.eps
+        # the learnable parameters as fresh leaves: per-pair ∂g/∂θ and the direct ∂g⁻¹/∂p by autograd
         want_p = [ctx.needs_input_grad[4 + i] for i in range(len(tparams))]
         leaves = [t.detach().requires_grad_(w) for t, w in zip(tparams, want_p)]
-        tcn = _bind(s.tconorm, leaves)
+        dist, tcn = _bind(s, leaves)
         p_in = [t for t, w in zip(leaves, want_p) if w]
         gp = [torch.zeros((), dtype=X.dtype, device=X.device) for _ in p_in]
         x_cut = s.cutoff_argument(ops, tau.detach())
@@ -633,19 +633,21 @@ class SoftAlpha(torch.autograd.Function):
         return (gX, gY, gtau.reshape(tau.shape), None, *gparams)
 
 
-def _bind(tcn, tparams, detach=False):
-    """The T-conorm with its learnable parameters' arrays replaced by ``tparams`` (in the order of
-    ``tcn.learnable``), optionally detached; ``tcn`` itself when none is learnable."""
-    if not tparams:
-        return tcn
-    return tcn.with_arrays({k: (t.detach() if detach else t) for k, t in zip(tcn.learnable, tparams)})
+def _bind(settings, tparams, detach=False):
+    """(distribution, T-conorm) of ``settings`` with their learnable parameters' arrays replaced by
+    ``tparams`` (in the order of :func:`learnable_tensors`), optionally detached."""
+    tparams = [t.detach() if detach else t for t in tparams]
+    tcn, dist = settings.tconorm, settings.distribution
+    n = len(tcn.learnable)
+    return (dist.with_arrays(dict(zip(dist.learnable, tparams[n:]))),
+            tcn.with_arrays(dict(zip(tcn.learnable, tparams[:n]))))
 
 
-def learnable_tensors(tconorm, dtype, device):
-    """The T-conorm's learnable parameters as 0-d tensors of the render dtype/device (differentiable
-    casts, in the order of ``tconorm.learnable``)."""
+def learnable_tensors(settings, dtype, device):
+    """The learnable parameters of the T-conorm, then of the distribution, as 0-d tensors of the
+    render dtype/device (differentiable casts)."""
     out = []
-    for name, v in tconorm.learnable.items():
+    for v in (*settings.tconorm.learnable.values(), *settings.distribution.learnable.values()):
         t = v if isinstance(v, torch.Tensor) else torch.as_tensor(float(v))
         out.append(t.to(dtype=dtype, device=device).reshape(()))
     return out
@@ -779,7 +781,7 @@ def render(settings, camera, verts, faces, colors, per_face, texture=None):
     radius = settings.culling_distance(settings.tau_value)
     with torch.no_grad():
         plan = Plan(settings, fc, *pixel_ranges(fc, H, W, radius))
-    alpha = SoftAlpha.apply(fc.X, fc.Y, tau, plan, *learnable_tensors(settings.tconorm, verts.dtype, verts.device))
+    alpha = SoftAlpha.apply(fc.X, fc.Y, tau, plan, *learnable_tensors(settings, verts.dtype, verts.device))
     if fc.shade is None:
         return torch.cat([alpha.new_zeros(*alpha.shape, 3), alpha[..., None]], -1)
     needs_grad = torch.is_grad_enabled() and any(t.requires_grad for t in (fc.X, fc.shade, tau)) or (

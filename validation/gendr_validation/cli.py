@@ -40,7 +40,7 @@ def validate_parser() -> argparse.ArgumentParser:
                "  gendr validate --instances 0,271 --scenes cube,torus --backends torch -o r")
     p.add_argument("-o", "--output", default="validation_report", metavar="OUTDIR", help="directory to write into (default: %(default)s)")
     mode = p.add_mutually_exclusive_group()
-    mode.add_argument("--quick", action="store_true", help="48x64, 7 scenes, 4 cameras, 7 limit instances, 12 gradient instances, textures, G-buffers (default)")
+    mode.add_argument("--quick", action="store_true", help="48x64, 7 scenes, 4 cameras, 7 limit instances, 13 gradient instances, textures, G-buffers (default)")
     mode.add_argument("--full", action="store_true", help="96x128, every scene and camera, all 47 limit instances, all gradient instances")
     p.add_argument("--backends", default=None, metavar="A,B", help="backends to check (default: every one that imports)")
     p.add_argument("--instances", default=None, metavar="SPEC",

@@ -19,10 +19,11 @@ pass per output — done on a few sampled outputs only).
 Gradients are backend specific: :data:`ADAPTERS` holds one adapter per backend (torch now). A backend
 without an adapter is skipped with a note.
 
-The T-conorm parameter p (param ``"p"``) is checked like τ: a relative step (f(p·(1 + t))), the AD
-side from ``gendr.tconorm(name, p=tensor)`` (a learnable p), per-pixel derivatives on a few sampled
-outputs. Only instances whose T-conorm has a parameter get it, except hamacher(p=0), which sits on
-the boundary of its domain (a central difference would step to p < 0).
+The T-conorm parameter p (param ``"p"``) and the distribution's shape (param ``"shape"``, gamma)
+are checked like τ: a relative step (f(p·(1 + t))), the AD side from ``gendr.tconorm(name,
+p=tensor)`` / ``gendr.distribution("gamma", shape=tensor)`` (learnable), per-pixel derivatives on a
+few sampled outputs. Only instances with such a parameter get the check, except hamacher(p=0),
+which sits on the boundary of its domain (a central difference would step to p < 0).
 """
 from __future__ import annotations
 
@@ -42,10 +43,12 @@ TAU_SQUARED = TAU ** 2
 # from central differences with steps h and h/2 (:func:`richardson`). Camera: at 1e-5 degrees the loss
 # FD is round-off bound (#649 exponential+rev|probabilistic). τ: at 1e-7 small losses were round-off
 # bound (#1207 levy+rev|dombi(0.5): loss error 7.7e-5 at h = 1e-7, 6e-8 at 1e-4).
-STEPS = {"vertices": 1e-6, "vertices_unlit": 1e-6, "camera": 1e-4, "tau": 1e-5, "p": 1e-5}
+STEPS = {"vertices": 1e-6, "vertices_unlit": 1e-6, "camera": 1e-4, "tau": 1e-5, "p": 1e-5, "shape": 1e-5}
 FLOOR = 1e-3
 THRESHOLDS = {"pixel_mean": 1e-4, "pixel_max": 1e-2, "loss": 1e-5}
-PARAMS = ("vertices", "vertices_unlit", "camera", "tau", "p")
+PARAMS = ("vertices", "vertices_unlit", "camera", "tau", "p", "shape")
+#: the checked parameters of the specs: name -> where it lives
+SPEC_PARAMS = {"p": "tconorm", "shape": "distribution"}
 #: shading per checked parameter: "vertices_unlit" moves vertices with ambient=1, diffuse=0 (no
 #: normal-dependent colour), separating silhouette/blend gradients from the Lambert-shading path
 UNLIT = {"ambient": 1.0, "diffuse": 0.0}
@@ -77,16 +80,16 @@ class TorchAdapter:
         self.torch = torch
         self.name = backend
 
-    def _renderer(self, inst, tau, H, W, shading=None, p=None):
-        tcn = inst.tconorm if p is None else gendr.tconorm(inst.tconorm.name, p=p)
-        return gendr.Renderer(inst.distribution, tcn, tau=tau, image_size=(H, W), backend=self.name,
+    def _renderer(self, inst, tau, H, W, shading=None, spec=None):
+        dist, tcn = with_spec_param(inst, *(spec or (None, None)))
+        return gendr.Renderer(dist, tcn, tau=tau, image_size=(H, W), backend=self.name,
                               eps=0.0, blend="softmax", gamma=0.05, max_pairs=1 << 20, **(shading or {}))
 
-    def render(self, inst, mesh, cam_params, tau, H, W, verts=None, shading=None, p=None):
-        """Image [H, W, 4] as NumPy float64 (no gradients); ``p``: the T-conorm parameter (None: the
-        instance's)."""
+    def render(self, inst, mesh, cam_params, tau, H, W, verts=None, shading=None, spec=None):
+        """Image [H, W, 4] as NumPy float64 (no gradients); ``spec``: (name, value) of a spec
+        parameter (:data:`SPEC_PARAMS`) to set (None: the instance's)."""
         torch = self.torch
-        r = self._renderer(inst, tau, H, W, shading, p)
+        r = self._renderer(inst, tau, H, W, shading, spec)
         v = mesh.vertices if verts is None else verts
         img = r.render(torch.as_tensor(v, dtype=torch.float64), mesh.faces, _camera(cam_params))
         return img.detach().numpy()[0]
@@ -122,9 +125,9 @@ class TorchAdapter:
                   if k != "fov_y" else val) for k, val in cam_params.items()}
         tt = torch.tensor(float(tau), dtype=torch.float64, requires_grad=(param == "tau"))
         pp = None
-        if param == "p":
-            pp = torch.tensor(_p_of(inst), dtype=torch.float64, requires_grad=True)
-        r = self._renderer(inst, tt, H, W, shading, pp)
+        if param in SPEC_PARAMS:
+            pp = torch.tensor(spec_value(inst, param), dtype=torch.float64, requires_grad=True)
+        r = self._renderer(inst, tt, H, W, shading, (param, pp) if pp is not None else None)
         img = r.render(v, mesh.faces, gendr.orbit_camera(cp["azimuth"], cp["elevation"], cp["distance"],
                                                          fov_y=cp["fov_y"]))
         L = (img[0] * torch.as_tensor(weights)).sum()
@@ -133,17 +136,18 @@ class TorchAdapter:
             return float((v.grad.numpy() * direction).sum())
         if param == "camera":
             return float(sum(cp[k].grad.item() * direction[i] for i, k in enumerate(("azimuth", "elevation", "distance"))))
-        if param == "p":
+        if param in SPEC_PARAMS:
             return float(pp.grad.item() * direction)
         return float(tt.grad.item() * direction)
 
     def tau_outputs(self, inst, mesh, cam_params, tau, H, W, index, shading=None, wrt="tau"):
-        """d image[index] / dτ (``wrt="p"``: / dp) for a few flat output indices (one backward each)."""
+        """d image[index] / dτ (``wrt="p"`` or ``"shape"``: / dθ of that spec parameter) for a few flat
+        output indices (one backward each)."""
         torch = self.torch
         out = []
-        if wrt == "p":
-            tt = torch.tensor(_p_of(inst), dtype=torch.float64, requires_grad=True)
-            r = self._renderer(inst, float(tau), H, W, shading, tt)
+        if wrt in SPEC_PARAMS:
+            tt = torch.tensor(spec_value(inst, wrt), dtype=torch.float64, requires_grad=True)
+            r = self._renderer(inst, float(tau), H, W, shading, (wrt, tt))
         else:
             tt = torch.tensor(float(tau), dtype=torch.float64, requires_grad=True)
             r = self._renderer(inst, tt, H, W, shading)
@@ -155,14 +159,29 @@ class TorchAdapter:
         return np.array(out)
 
 
-def _p_of(inst):
-    """The instance's T-conorm parameter p (a float)."""
-    return float(inst.tconorm.kwargs["p"])
+def spec_value(inst, name):
+    """The instance's value (a float) of the spec parameter ``name`` (:data:`SPEC_PARAMS`)."""
+    return float(getattr(inst, SPEC_PARAMS[name]).kwargs[name])
 
 
-def has_p(inst):
-    """Whether the p check applies: a parametric T-conorm, not on its domain's boundary."""
-    return "p" in inst.tconorm.kwargs and not (inst.tconorm.name == "hamacher" and _p_of(inst) == 0.0)
+def with_spec_param(inst, name, value):
+    """(distribution, T-conorm) of the instance, with the spec parameter ``name`` set to ``value``
+    (a float or a tensor; ``name`` None: unchanged)."""
+    dist, tcn = inst.distribution, inst.tconorm
+    if name == "p":
+        tcn = gendr.tconorm(tcn.name, p=value)
+    elif name == "shape":
+        dist = gendr.distribution(dist.name, reversed=dist.reversed, shift=dist.shift, squared=dist.squared,
+                                  shape=value)
+    return dist, tcn
+
+
+def has_spec_param(inst, name):
+    """Whether the check of spec parameter ``name`` applies: the instance has it, not on its domain's
+    boundary (hamacher p = 0)."""
+    if name not in getattr(inst, SPEC_PARAMS[name]).kwargs:
+        return False
+    return not (name == "p" and inst.tconorm.name == "hamacher" and spec_value(inst, "p") == 0.0)
 
 
 def _camera(p):
@@ -218,7 +237,7 @@ def check_instance(adapter, inst, *, H=H_DEFAULT, W=W_DEFAULT, seed=0, params=PA
     weights = rng.standard_normal((H, W, 4))
     results, images = [], {}
     for param in params:
-        if param == "p" and not has_p(inst):
+        if param in SPEC_PARAMS and not has_spec_param(inst, param):
             continue
         t0 = time.perf_counter()
         h = STEPS[param]
@@ -234,14 +253,14 @@ def check_instance(adapter, inst, *, H=H_DEFAULT, W=W_DEFAULT, seed=0, params=PA
             at = lambda s: adapter.render(inst, mesh, {**cam, "azimuth": cam["azimuth"] + s * u[0],
                                                        "elevation": cam["elevation"] + s * u[1],
                                                        "distance": cam["distance"] + s * u[2]}, tau, H, W, shading=shading)
-        elif param == "p":
-            u = _p_of(inst)  # relative step: d/dt f(p + t·p)
-            at = lambda s: adapter.render(inst, mesh, cam, tau, H, W, shading=shading, p=u * (1 + s))
+        elif param in SPEC_PARAMS:
+            u = spec_value(inst, param)  # relative step: d/dt f(θ + t·θ)
+            at = lambda s: adapter.render(inst, mesh, cam, tau, H, W, shading=shading, spec=(param, u * (1 + s)))
         else:
             u = tau  # relative step: d/dt f(τ + t·τ)
             at = lambda s: adapter.render(inst, mesh, cam, tau * (1 + s), H, W, shading=shading)
         fd, fp, fm = richardson(at, h)
-        if param in ("tau", "p"):
+        if param == "tau" or param in SPEC_PARAMS:
             idx = np.argsort(-np.abs(fd).reshape(-1))[:TAU_SAMPLES]
             ad = _scatter(adapter.tau_outputs(inst, mesh, cam, tau, H, W, idx, shading, wrt=param) * u, idx, fd.shape)
         else:
@@ -287,7 +306,9 @@ QUICK_NAMES = ("uniform|max", "logistic|probabilistic", "gaussian|einstein", "ca
                "exponential+rev+sq|probabilistic", "gaussian|aczel_alsina(p=0.25)",
                # with the two above (yager, aczel_alsina), one of each parametric family for ∂/∂p
                "logistic|hamacher(p=4)", "gaussian|frank(p=10)", "laplace|dombi(p=2)",
-               "logistic+sq|schweizer_sklar(p=-2)")
+               "logistic+sq|schweizer_sklar(p=-2)",
+               # ∂/∂shape of the one parametric distribution (the paper's best instance family)
+               "gamma(shape=0.5)+rev|probabilistic")
 
 
 def instance_by_index(index):
