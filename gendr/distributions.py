@@ -713,11 +713,13 @@ def _log_ratio(ops, x, k):
     return ops.where(near, ops.log1p((x_near - k) / k), ops.log(x_far) - math.log(k))
 
 
-def _gamma_parts(ops, x, k):
+def _gamma_parts(ops, x, k, shape_derivatives=False):
     """Both approximations of the incomplete gamma function at x > 0 (finite elsewhere, unused).
 
     Returns ``(use_series, log_p, log_q, xs, total, xc, t)``: the selection, log P(k, x) and
-    log Q(k, x), and the series / continued fraction quantities the derivatives reuse.
+    log Q(k, x), and the series / continued fraction quantities the derivatives reuse. With
+    ``shape_derivatives``, also ``(dtotal, dt)``: ∂Σ/∂k and ∂t/∂k of the same truncated series
+    and fraction, differentiated term by term in the same loops (see _gamma_shape_derivatives).
     """
     sw = k + _GAMMA_SWITCH
     use_series = x < sw
@@ -727,20 +729,29 @@ def _gamma_parts(ops, x, k):
     xs = ops.where(x > 0.0, ops.where(use_series, x, sw), 1.0)
     term = ops.full_like(xs, 1.0)
     total = term
+    # ∂term_n/∂k = −term_n Σ_{j≤n} 1/(k+j) (only when asked: this is the renderer's hot loop)
+    dtotal, harmonic = (ops.full_like(xs, 0.0), 0.0) if shape_derivatives else (None, None)
     for n in range(1, _GAMMA_SERIES_TERMS):
         term = term * xs / (k + n)
         total = total + term
+        if shape_derivatives:
+            harmonic += 1.0 / (k + n)
+            dtotal = dtotal - term * harmonic
     log_p_series = k * _log_ratio(ops, xs, k) - (xs - k) - c + ops.log(total)
     # Legendre's continued fraction, evaluated bottom-up from depth _GAMMA_CF_DEPTH:
     # Q = x^k e^(−x) / Γ(k) / t,  t = x+1−k − 1(1−k)/(x+3−k − 2(2−k)/(x+5−k − ...))
     xc = ops.where(use_series, sw, x)
     t = xc + (2.0 * _GAMMA_CF_DEPTH + 1.0 - k)
+    dt = ops.full_like(xc, -1.0) if shape_derivatives else None
     for n in range(_GAMMA_CF_DEPTH, 0, -1):
+        if shape_derivatives:  # of t_n = x + 2n − 1 − k − n(n − k)/t_{n+1}
+            dt = -1.0 + n / t + (n * (n - k)) * dt / (t * t)
         t = xc + (2.0 * n - 1.0 - k) - (n * (n - k)) / t
     log_q_cf = k * _log_ratio(ops, xc, k) - (xc - k) - (c - math.log(k)) - ops.log(t)
     log_p = ops.where(use_series, log_p_series, ops.log1p(-ops.exp(log_q_cf)))
     log_q = ops.where(use_series, ops.log1p(-ops.exp(log_p_series)), log_q_cf)
-    return use_series, log_p, log_q, xs, total, xc, t
+    parts = (use_series, log_p, log_q, xs, total, xc, t)
+    return parts + (dtotal, dt) if shape_derivatives else parts
 
 
 def _gamma_log_pdf(ops, x, k):
@@ -765,29 +776,17 @@ def _digamma(k: float) -> float:
 
 
 def _gamma_shape_derivatives(ops, x, k):
-    """(use_series, ∂ log P/∂k, ∂ log Q/∂k, log P, log Q) of the regularized incomplete gamma functions at x > 0 (0
-    elsewhere), by differentiating the same truncated series and continued fraction term by term:
+    """(use_series, ∂ log P/∂k, ∂ log Q/∂k, log P, log Q) of the regularized incomplete gamma
+    functions at x > 0 (0 elsewhere), from the same truncated series and continued fraction,
+    differentiated term by term (:func:`_gamma_parts` with ``shape_derivatives``):
 
     series: log P = k log x − x − log Γ(k+1) + log Σ_n a_n, a_n = Π_{j≤n} x/(k+j), with
             ∂a_n/∂k = −a_n Σ_{j≤n} 1/(k+j);
     fraction: log Q = k log x − x − log Γ(k) − log t, with ∂t/∂k from the recurrence of t.
     The other function follows from P + Q = 1 (∂ log P/∂k = −(Q/P) ∂ log Q/∂k)."""
     x = ops.detach(x)
-    use_series, log_p, log_q, xs, total, xc, t_final = _gamma_parts(ops, x, k)
-    term = ops.full_like(xs, 1.0)
-    dtotal = ops.full_like(xs, 0.0)
-    harmonic = 0.0
-    for n in range(1, _GAMMA_SERIES_TERMS):
-        term = term * xs / (k + n)
-        harmonic += 1.0 / (k + n)
-        dtotal = dtotal - term * harmonic
+    use_series, log_p, log_q, xs, total, xc, t, dtotal, dt = _gamma_parts(ops, x, k, shape_derivatives=True)
     dlog_p_series = ops.log(xs) - _digamma(k + 1.0) + dtotal / total
-    t = xc + (2.0 * _GAMMA_CF_DEPTH + 1.0 - k)
-    dt = ops.full_like(xc, -1.0)
-    for n in range(_GAMMA_CF_DEPTH, 0, -1):
-        # t_n = x + 2n − 1 − k − n(n − k)/t_{n+1}
-        dt = -1.0 + n / t + (n * (n - k)) * dt / (t * t)
-        t = xc + (2.0 * n - 1.0 - k) - (n * (n - k)) / t
     dlog_q_cf = ops.log(xc) - _digamma(k) - dt / t
     dlog_p = ops.where(use_series, dlog_p_series, -ops.exp(log_q - log_p) * dlog_q_cf)
     dlog_q = ops.where(use_series, -ops.exp(log_p - log_q) * dlog_p_series, dlog_q_cf)
