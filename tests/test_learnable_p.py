@@ -123,22 +123,28 @@ def test_float32_render_with_float64_p(backend):
     np.testing.assert_allclose(float(p32.grad), float(p64.grad), rtol=1e-3)
 
 
-def test_drjit_native_learnable_p():
-    """A Dr.Jit AD array as p (no torch in the loop): dr.grad(p) equals the torch backend's."""
+def drjit_native_grad(value, specs):
+    """∂L/∂θ from the drjit backend with θ = ``value`` given as a Dr.Jit AD array (no torch in the
+    loop); ``specs(θ)`` returns (distribution, T-conorm). L is _render_loss's (weights of seed 0)."""
     dr = pytest.importorskip("drjit")
     from drjit.llvm.ad import Float64, TensorXf64
     v, f, cam = _scene()
-    p = Float64(2.0)
-    dr.enable_grad(p)
-    r = gendr.Renderer("logistic", gendr.tconorm("aczel_alsina", p=p), tau=0.08, image_size=(12, 16),
-                       backend="drjit", device="llvm", eps=0.0, blend=None)
+    theta = Float64(value)
+    dr.enable_grad(theta)
+    r = gendr.Renderer(*specs(theta), tau=0.08, image_size=(12, 16), backend="drjit", device="llvm", eps=0.0,
+                       blend=None)
     img = r.render(TensorXf64(np.ascontiguousarray(v)), f, cam)
     w = np.random.default_rng(0).standard_normal((1, 12, 16, 4))
-    L = dr.sum((img * TensorXf64(w)).array)
-    dr.backward(L)
+    dr.backward(dr.sum((img * TensorXf64(w)).array))
+    return float(dr.grad(theta)[0])
+
+
+def test_drjit_native_learnable_p():
+    """A Dr.Jit AD array as p (no torch in the loop): dr.grad(p) equals the torch backend's."""
+    g = drjit_native_grad(2.0, lambda p: ("logistic", gendr.tconorm("aczel_alsina", p=p)))
     L_t, pt = _render_loss("torch", "aczel_alsina", 2.0, grad=True)
     L_t.backward()
-    np.testing.assert_allclose(float(dr.grad(p)[0]), float(pt.grad), rtol=1e-10)
+    np.testing.assert_allclose(g, float(pt.grad), rtol=1e-10)
 
 
 # --- domain -------------------------------------------------------------------------------------

@@ -92,13 +92,16 @@ def _fd_check(backend, blend, filt, wrt):
         v, t = (x, tex) if wrt == "vertices" else (verts, x)
         return (r.render(v, m.faces, CAM, texture=t, uvs=m.uvs, uv_faces=m.uv_faces) * w).sum()
 
+    return _directional(loss, x0, u)
+
+
+def _directional(loss, x0, u, h=1e-6):
+    """(autograd, central difference with step h) of the derivative of ``loss`` at x0 along u."""
     x = x0.clone().requires_grad_(True)
     (g,) = torch.autograd.grad(loss(x), x)
-    ad = float((g * u).sum())
-    h = 1e-6
     with torch.no_grad():
         fd = float((loss(x0 + h / 2 * u) - loss(x0 - h / 2 * u)) / h)
-    return ad, fd
+    return float((g * u).sum()), fd
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
@@ -275,12 +278,7 @@ def test_gbuffer_depth_gradient_matches_finite_differences(backend):
         g = r.rasterize(v, m.faces, CAM)
         return (torch.cat([g.bary, g.depth[..., None], g.normal], -1) * w).sum()
 
-    v = v0.clone().requires_grad_(True)
-    (grad,) = torch.autograd.grad(loss(v), v)
-    ad = float((grad * u).sum())
-    h = 1e-6
-    with torch.no_grad():
-        fd = float((loss(v0 + h / 2 * u) - loss(v0 - h / 2 * u)) / h)
+    ad, fd = _directional(loss, v0, u)
     assert abs(ad - fd) <= 1e-6 * max(abs(fd), 1.0), (ad, fd)
 
 
