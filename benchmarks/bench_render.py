@@ -3,6 +3,10 @@
     .venv/bin/python benchmarks/bench_render.py --out out/bench_torch.json            # default cases
     .venv/bin/python benchmarks/bench_render.py --case large --repeats 1              # 1024², 20,480 faces
     .venv/bin/python benchmarks/bench_render.py --backend drjit --out out/bench_drjit.json
+    .venv/bin/python benchmarks/bench_render.py --backend torch-compiled --out out/bench_torch_compiled.json
+
+``--backend torch-compiled``: the torch backend with ``compile=True`` (per-pair chains fused by
+``torch.compile``); ``first_call_cold_ms`` is then the first call with an empty Inductor cache.
 
 With ``--backend drjit`` the inputs are Dr.Jit tensors (LLVM on CPU, float32) and each call ends with
 ``dr.sync_thread()`` (launches are asynchronous). Extra fields: ``first_call_cold_ms`` (first call
@@ -84,10 +88,11 @@ def measure(fn, repeats):
 def run_fresh(script, args, cold=False):
     """Run ``script args`` in a fresh interpreter; the last line of its output, parsed as JSON.
 
-    ``cold``: with HOME pointing to an empty directory, so Dr.Jit finds no cached kernels."""
+    ``cold``: with HOME (and the Inductor cache) pointing to an empty directory, so Dr.Jit and
+    torch.compile find no cached kernels."""
     import tempfile
     with tempfile.TemporaryDirectory(prefix="gendr-bench-home-") as home:
-        env = dict(os.environ, HOME=home) if cold else None
+        env = dict(os.environ, HOME=home, TORCHINDUCTOR_CACHE_DIR=os.path.join(home, "inductor")) if cold else None
         out = subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True, check=True,
                              env=env).stdout
     return json.loads(out.strip().splitlines()[-1])
@@ -147,7 +152,7 @@ def setup(backend, name, threads, freeze=False, device="cpu"):
     faces = torch.tensor(mesh.faces, device=device)
     cam = gendr.PerspectiveCamera(eye=(0.0, 0.0, 3.0), fov_y=60.0)
     r = gendr.Renderer("logistic", "probabilistic", tau=0.01, image_size=cfg["size"], eps=1e-4,
-                       blend=None, backend=backend)
+                       blend=None, backend="torch", compile=backend == "torch-compiled")
 
     def forward():
         with torch.no_grad():
@@ -273,8 +278,9 @@ def run_case(backend, name, repeats, threads, freeze=True, device="cpu"):
         out[label] = summary(measure(fn, repeats))
         if device == "cpu":
             out[label]["peak_extra_mb"] = peak_extra_mb(backend, name, label, threads)
-        if backend == "drjit":
+        if backend in ("drjit", "torch-compiled"):
             out[label]["first_call_cold_ms"] = probe(backend, name, label, threads, True, device)["first_call_ms"]
+        if backend == "drjit":
             out[label] |= kernel_stats(fn)
     if backend == "drjit":
         out["time_split"] = {label: time_split(modes[label], repeats) for label in ("forward", "forward_backward")}
@@ -302,7 +308,7 @@ def emit(result, out=None):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--backend", default="torch")
+    ap.add_argument("--backend", default="torch", choices=("torch", "torch-compiled", "drjit"))
     ap.add_argument("--case", choices=sorted(CASES), action="append", help="default: the 'default' case")
     ap.add_argument("--repeats", type=int, default=10)
     ap.add_argument("--threads", type=int, default=os.cpu_count())

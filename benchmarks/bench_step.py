@@ -16,14 +16,16 @@ Cases (the steps of ``gendr_experiments.shape.ShapeProblem`` and ``gendr_experim
 
 Each with the T-conorm probabilistic and the distribution ``logistic`` or ``cauchy`` (heavy tails:
 no culling radius, every face reaches every pixel, so its steps are slow), and the backend
-``torch``, ``drjit`` (LLVM, float32) or ``drjit-frozen`` (``freeze=True``: renders replayed by
+``torch``, ``torch-compiled`` (``compile=True``: per-pair chains fused by ``torch.compile``),
+``drjit`` (LLVM, float32) or ``drjit-frozen`` (``freeze=True``: renders replayed by
 ``dr.freeze``). The model, loss and Adam are torch in every case (the drjit backend takes torch
 tensors through its torch bridge).
 
 Per case: the step time over ``--repeats`` steps after one warm-up step (median, min, max, stdev;
 repeats default to 10, 3 for cauchy), the step's loss, and the first call, set-up plus first step,
 in a fresh process (``setup_ms``, ``first_step_ms``, ``first_call_ms``); for drjit that process has
-an empty Dr.Jit kernel cache (``first_call_cold``), as bench_render.py's cold probe. Frozen rows
+an empty Dr.Jit kernel cache, for torch-compiled an empty Inductor cache (``first_call_cold``), as
+bench_render.py's cold probe. Frozen rows
 also give ``frozen_recordings`` (Python traces made in all steps so far: 2 = forward and backward
 recorded once). Top level: machine, versions, load average before and after.
 """
@@ -51,7 +53,8 @@ CASES = {
                                  tau=0.01, eps=1e-4)),
     "pose": (PoseProblem, dict(target="teapot_like", image_size=64, tau_start=1e-3, tau_end=1e-3)),
 }
-BACKENDS = {"torch": ("torch", {}), "drjit": ("drjit", {}), "drjit-frozen": ("drjit", {"freeze": True})}
+BACKENDS = {"torch": ("torch", {}), "torch-compiled": ("torch", {"compile": True}), "drjit": ("drjit", {}),
+            "drjit-frozen": ("drjit", {"freeze": True})}
 DISTS = ("logistic", "cauchy")
 REPEATS = {"logistic": 10, "cauchy": 3}  # cauchy steps take seconds
 
@@ -85,7 +88,7 @@ def first_call(case, backend, dist, threads):
 
 def run_case(case, backend, dist, repeats, threads):
     # the first call in a fresh process (drjit: with an empty kernel cache), then the steady state here
-    cold = BACKENDS[backend][0] == "drjit"
+    cold = BACKENDS[backend][0] == "drjit" or "compile" in BACKENDS[backend][1]
     first = run_fresh(__file__, ["--first-call", case, backend, dist, "--threads", str(threads)], cold=cold)
     prob, _ = first_call(case, backend, dist, threads)
     counter = itertools.count(1)
@@ -93,6 +96,7 @@ def run_case(case, backend, dist, repeats, threads):
     times = measure(lambda: losses.append(prob.step(next(counter))), repeats)  # + 1 warm-up step
     faces = prob.model.faces if case == "shape" else prob.faces
     out = {"case": case, "backend": BACKENDS[backend][0], "freeze": bool(BACKENDS[backend][1].get("freeze")),
+           "compile": bool(BACKENDS[backend][1].get("compile")),
            "distribution": dist, "tconorm": "probabilistic", "renderer_tau": prob.renderer.settings.tau_value,
            "faces": int(faces.shape[0]), "threads": threads, "loss_last": losses[-1]}
     out |= summary(times) | first | {"first_call_cold": cold}

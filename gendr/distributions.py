@@ -170,6 +170,10 @@ class Distribution(LearnableParams):
         """x = d/τ, or d·|d|/τ for the squared variant (d: signed distance, + inside)."""
         return d * ops.abs(d) / tau if self.squared else d / tau
 
+    def argument_derivative(self, ops, d, tau):
+        """∂x/∂d of :meth:`argument`: 1/τ, or 2|d|/τ for the squared variant (∂x/∂τ is −x/τ)."""
+        return 2.0 * ops.abs(d) / tau if self.squared else ops.full_like(d, 1.0) / tau
+
     def coverage(self, ops, d, tau):
         """Soft coverage ``(p, log(1 − p))`` of signed distances ``d`` at scale ``tau``."""
         return self.cdf_and_log_sf(ops, self.argument(ops, d, tau))

@@ -492,3 +492,15 @@ def test_any_shape_accepted():
         d = distribution("gamma", shape=k)
         x = np.linspace(0, 3 * k + 50, 50)
         assert np.all(np.isfinite(d.cdf(O, x)))
+
+
+@pytest.mark.parametrize("squared", [False, True])
+def test_argument_derivative_is_the_derivative_of_argument(squared):
+    """∂x/∂d in closed form (used by the torch backend's compiled backward) equals autograd's."""
+    torch = pytest.importorskip("torch")
+    from gendr_torch.ops import torch_ops
+    dist = gendr.distribution("logistic", squared=squared)
+    d = torch.linspace(-0.3, 0.3, 41, dtype=torch.float64).requires_grad_(True)
+    tau = torch.tensor(0.02, dtype=torch.float64)
+    g, = torch.autograd.grad(dist.argument(torch_ops, d, tau).sum(), d)
+    torch.testing.assert_close(dist.argument_derivative(torch_ops, d.detach(), tau), g, rtol=1e-15, atol=0.0)

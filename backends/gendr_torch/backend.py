@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from gendr.errors import DTypeError
+from gendr.errors import DTypeError, ParameterError
 
 from . import raster
 from .ops import torch_ops
@@ -13,13 +13,21 @@ _FLOATS = (torch.float32, torch.float64)
 
 
 class TorchBackend:
-    """Renders with PyTorch on the device of the inputs (or ``device=`` for NumPy inputs)."""
+    """Renders with PyTorch on the device of the inputs (or ``device=`` for NumPy inputs).
+
+    compile : fuse the per-pair chains of the soft alpha with ``torch.compile`` (see
+        :mod:`gendr_torch.fused`): several times faster per render after a compilation of tens of
+        seconds per renderer instance; needs a C++ compiler on CPU (else a warning, and eager).
+    """
 
     name = "torch"
     ops = torch_ops
 
-    def __init__(self, device=None):
+    def __init__(self, device=None, compile=False):
+        if not isinstance(compile, bool):
+            raise ParameterError(f"torch backend parameter compile={compile!r} must be True or False")
         self.device = torch.device(device) if device is not None else None
+        self.compile = compile
 
     def float_array(self, x, name, like=None):
         if isinstance(x, torch.Tensor):
@@ -59,7 +67,7 @@ class TorchBackend:
         if texture is not None:
             tex, uv, uvf = texture
             texture = (tex.to(verts.device), uv.to(verts.device), uvf.to(verts.device))
-        return raster.render(settings, camera, verts, faces, colors, per_face, texture)
+        return raster.render(settings, camera, verts, faces, colors, per_face, texture, self.compile)
 
     def rasterize(self, settings, verts, faces, camera):
         """(face_id int64, bary, depth, normal) tensors, see gendr.GBuffer."""

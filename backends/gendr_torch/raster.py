@@ -25,6 +25,7 @@ from gendr.errors import ShapeError
 from gendr.renderer import LAMBERT_KINK_ULPS
 from gendr.tconorms import MAX, MEAN
 
+from .fused import FusedChains
 from .ops import torch_ops as ops
 
 
@@ -340,6 +341,7 @@ class Plan:
     i1: torch.Tensor
     j0: torch.Tensor
     j1: torch.Tensor
+    fused: object = None  # fused.FusedChains (compile=True) or None: eager
 
     def __post_init__(self):
         self.face, self.row = face_rows(self.i0, self.i1)
@@ -398,39 +400,37 @@ def _below(a, b):
     return (b - a).sign_().clamp_(min=0.0)
 
 
-def signed_distance(g, K, blk, track=False):
-    """Signed distance (inside > 0, outside < 0) of the block's pixel centres to their face
-    polygons, [R, width] (g: the faces' edge_table rows, [R, 8K]).
+def signed_distance(g, K, px, py, track=False):
+    """Signed distance (inside > 0, outside < 0) of a block's pixel centres to their face
+    polygons, [R, width] (g: the faces' edge_table rows, [R, 8K]; px: screen X [R, width], py:
+    screen Y [R, 1], see Block).
 
     With ``track``, also returns what the analytic backward needs: the nearest edge k (as a float),
     the position t in [0, 1] of the nearest boundary point on it, and the unit vector (ux, uy) with
     ∂d/∂P_k = (1 − t)·u and ∂d/∂P_{k+1} = t·u.
     """
-    px = blk.px()
     d2 = emin = None
     for k in range(K):
         Px, Py, Ex, Ey, il, nx, ny, c = g[:, 8 * k: 8 * k + 8, None].unbind(1)  # [R, 1] each
         # rounded as the textbook formulas (and Dr.Jit) do: no fused multiply-adds (addcmul is
         # one), since ties between edges at kinks must break alike; the terms in py are per row
-        dx, dy = px - Px, blk.py - Py
+        dx, dy = px - Px, py - Py
         t = (dx * Ex).add_(dy * Ey).mul_(il).clamp_(0.0, 1.0)
         qx, qy = dx - t * Ex, dy - t * Ey
         dk = (qx * qx).add_(qy * qy)
         ek = (dx * nx).add_(dy * ny + c)  # c is 0, or decides alone
         if d2 is None:
             d2, emin = dk, ek
-            if track:  # no autograd here: updated in place
-                kd, ke = torch.zeros_like(dk), torch.zeros_like(dk)
-                td, te = t, t.clone()
-                qxb, qyb, nxb, nyb = qx, qy, nx.expand_as(dk).clone(), ny.expand_as(dk).clone()
+            if track:  # (out of place: torch.compile fuses it into one loop)
+                kd = ke = torch.zeros_like(dk)
+                td = te = t
+                qxb, qyb, nxb, nyb = qx, qy, nx, ny
         else:
             if track:  # the first edge attaining the minimum, as torch.minimum's ties resolve
                 bd, be = _below(dk, d2), _below(ek, emin)
                 kk = dk.new_full((), k)
-                for a, b in ((kd, kk), (td, t), (qxb, qx), (qyb, qy)):
-                    a.lerp_(b, bd)
-                for a, b in ((ke, kk), (te, t), (nxb, nx), (nyb, ny)):
-                    a.lerp_(b, be)
+                kd, td, qxb, qyb = (torch.lerp(a, b, bd) for a, b in ((kd, kk), (td, t), (qxb, qx), (qyb, qy)))
+                ke, te, nxb, nyb = (torch.lerp(a, b, be) for a, b in ((ke, kk), (te, t), (nxb, nx), (nyb, ny)))
             d2, emin = torch.minimum(d2, dk), torch.minimum(emin, ek)
     inside = 1.0 - _below(emin, 0.0)
     # inside a convex polygon the distance to the boundary is the distance to the nearest edge line
@@ -443,28 +443,50 @@ def signed_distance(g, K, blk, track=False):
     return d, torch.lerp(kd, ke, inside), torch.lerp(td, te, inside), ux, uy
 
 
-def _generator_terms(dist, tcn, x, eps, x_cut=None):
-    """Per-pair generator values g(p) (0 where saturated, or culled: coverage < eps, tested as
-    x < F⁻¹(eps) like the Dr.Jit backend; and with ``x_cut``, x <= x_cut, the reference cut-off of
-    RenderSettings.cutoff_argument) and the mask of saturated pairs (p = 1, or g overflowed), which
-    set their pixel's alpha to 1 (None: none). The mean (``average``) sums p itself
-    (TConorm.pair_term), culled alike, and never saturates: a face with p = 1 just adds 1."""
+def culling_argument(dist, eps):
+    """F⁻¹(eps): pairs with x below it have coverage < eps and are dropped (None: eps = 0)."""
+    return dist.argument_threshold(eps) if eps > 0 else None
+
+
+def pair_terms(dist, tcn, x):
+    """(g, p, log(1 − p)) per pair, nothing culled or masked: the generator g that a streaming
+    aggregation sums (for the mean p itself; then p and log1m are None)."""
     if tcn.kind == MEAN:
-        p = tcn.pair_term(ops, dist.cdf(ops, x))
-        keep = _keep(dist, x.detach(), eps, x_cut)
-        return (p * keep if keep is not None else p), None
+        return tcn.pair_term(ops, dist.cdf(ops, x)), None, None
     p, log1m = dist.cdf_and_log_sf(ops, x)
-    g = tcn.generator(ops, p, log1m)
-    if bool(torch.isfinite(log1m.detach().sum() + g.detach().sum())):  # the usual case: nothing saturated
-        keep = _keep(dist, x.detach(), eps, x_cut)
-        return (g * keep if keep is not None else g), None  # g is finite here
+    return tcn.generator(ops, p, log1m), p, log1m
+
+
+def _generator_parts(dist, tcn, x, x_min, x_cut):
+    """(g, keep, p, log(1 − p)) per pair, nothing masked (p, log1m: None for the mean)."""
+    g, p, log1m = pair_terms(dist, tcn, x)
+    return g, keep_mask(ops.detach(x), x_min, x_cut), p, log1m
+
+
+def generator_unsaturated(dist, tcn, x, x_min, x_cut=None):
+    """Per-pair generator values g(p), culled pairs 0 (coverage < eps, tested as x < x_min =
+    F⁻¹(eps), see culling_argument, like the Dr.Jit backend; and with ``x_cut``, x <= x_cut, the reference cut-off of
+    RenderSettings.cutoff_argument), assuming no pair saturates, and a check: a 0-d tensor that is
+    finite exactly when none did (p < 1 and g finite everywhere). No data-dependent branch (this
+    is what ``compile=True`` fuses). The mean (``average``) sums p itself (TConorm.pair_term),
+    culled alike, and never saturates: a face with p = 1 just adds 1."""
+    g, keep, _, log1m = _generator_parts(dist, tcn, x, x_min, x_cut)
+    check = g.new_zeros(()) if log1m is None else ops.detach(log1m).sum() + ops.detach(g).sum()
+    return (g * keep if keep is not None else g), check
+
+
+def _generator_terms(dist, tcn, x, eps, x_cut=None):
+    """Per-pair generator values (see generator_unsaturated) and the mask of saturated pairs
+    (p = 1, or g overflowed), which set their pixel's alpha to 1 (None: none)."""
+    g, keep, p, log1m = _generator_parts(dist, tcn, x, culling_argument(dist, eps), x_cut)
+    if log1m is None or bool(torch.isfinite(log1m.detach().sum() + g.detach().sum())):  # nothing saturated
+        return (g * keep if keep is not None else g), None
     sat = ~torch.isfinite(log1m)
     g = tcn.generator(ops, torch.where(sat, 0.5, p), torch.where(sat, math.log(0.5), log1m))
     over = ~torch.isfinite(g)
     if bool(over.any()):
         sat = sat | over
         g = tcn.generator(ops, torch.where(sat, 0.5, p), torch.where(sat, math.log(0.5), log1m))
-    keep = _keep(dist, x.detach(), eps, x_cut)
     if keep is not None:
         keep = keep > 0.0
         sat = sat & keep
@@ -472,10 +494,24 @@ def _generator_terms(dist, tcn, x, eps, x_cut=None):
     return torch.where(sat, 0.0, g), sat
 
 
-def _keep(dist, x, eps, x_cut):
-    """1.0 for the pairs that count, x >= F⁻¹(eps) (coverage >= eps) and x > x_cut, else 0.0
+def edge_sums(gd, k, t, ux, uy, K):
+    """∂L/∂d per pair [R, width] -> per edge e and row the sums over the row's pairs whose nearest
+    edge is e of the corner parts (corner e: x, y; corner e + 1: x, y), [K, 4, R]; with
+    ∂d/∂P_e = (1 − t)·u and ∂d/∂P_{e+1} = t·u (see signed_distance)."""
+    gb = gd * t
+    ga = gd - gb
+    parts = (ga * ux, ga * uy, gb * ux, gb * uy)
+    out = []
+    for e in range(K):
+        m = (k - e).abs_().clamp_(max=1.0).neg_().add_(1.0)  # 1.0 where k == e
+        out.append(torch.stack([(v * m).sum(1) for v in parts]))
+    return torch.stack(out)
+
+
+def keep_mask(x, x_min, x_cut):
+    """1.0 for the pairs that count, x >= x_min (coverage >= eps) and x > x_cut, else 0.0
     (arithmetic, see _below); None: all count."""
-    keep = 1.0 - _below(x, dist.argument_threshold(eps)) if eps > 0 else None
+    keep = 1.0 - _below(x, x_min) if x_min is not None else None
     if x_cut is not None:
         above = _below(x_cut, x)
         keep = above if keep is None else keep * above
@@ -516,8 +552,13 @@ class SoftAlpha(torch.autograd.Function):
         if tcn.streams:  # archimedean T-conorms and the mean: a scatter-added sum per pixel
             nsat = torch.zeros(B * H * Wc, dtype=torch.int32, device=X.device)
             for blk in plan.chunks():
-                d = signed_distance(geom.index_select(0, blk.face), K, blk)
-                g, sat = _generator_terms(dist, tcn, dist.argument(ops, d, tau), eps, x_cut)
+                out = plan.fused.forward(geom, blk.face, blk.px(), blk.py, tau, x_cut) if plan.fused else None
+                if out is not None and bool(torch.isfinite(out[1])):
+                    g, sat = out[0], None
+                    plan.fused.unsaturated.add(id(blk))
+                else:
+                    d = signed_distance(geom.index_select(0, blk.face), K, blk.px(), blk.py)
+                    g, sat = _generator_terms(dist, tcn, dist.argument(ops, d, tau), eps, x_cut)
                 pix = blk.pix().reshape(-1)
                 S.index_add_(0, pix, g.reshape(-1))
                 if sat is not None:
@@ -528,7 +569,7 @@ class SoftAlpha(torch.autograd.Function):
             for r0, r1, blk in plan.bands():
                 if blk is None:
                     continue
-                d = signed_distance(geom.index_select(0, blk.face), K, blk)
+                d = signed_distance(geom.index_select(0, blk.face), K, blk.px(), blk.py)
                 p = _coverage_max(dist, dist.argument(ops, d, tau), eps, x_cut)
                 pix = blk.pix().reshape(-1).long()
                 Sb = X.new_zeros(B * (r1 - r0) * Wc).scatter_reduce_(0, pix, p.reshape(-1), "amax", include_self=True)
@@ -581,17 +622,13 @@ class SoftAlpha(torch.autograd.Function):
                     gp[i] = gp[i] + g
             return grads[0]
 
-        def scatter(blk, gd, k, t, ux, uy):
-            gb = gd * t
-            ga = gd - gb
-            parts = (ga * ux, ga * uy, gb * ux, gb * uy)
-            # sums over each row's pixels per nearest edge, then per face: index_add per pair is
-            # slow where neighbouring pairs hit the same face and edge
+        def scatter(blk, sums):
+            # sums over each row's pixels per nearest edge (edge_sums), then per face: index_add
+            # per pair is slow where neighbouring pairs hit the same face and edge
             for e in range(K):
-                m = (k - e).abs_().clamp_(max=1.0).neg_().add_(1.0)  # 1.0 where k == e
                 idx = blk.face * K + e
-                for i, v in enumerate(parts):
-                    gP[i].index_add_(0, idx, (v * m).sum(1))
+                for i in range(4):
+                    gP[i].index_add_(0, idx, sums[e, i])
 
         if tcn.streams:
             with torch.enable_grad():  # dL/dS = dL/dA · dA/dS, per pixel (and the direct ∂g⁻¹/∂p)
@@ -602,12 +639,21 @@ class SoftAlpha(torch.autograd.Function):
                 if g is not None:
                     gp[i] = gp[i] + g
             gS = torch.nn.functional.pad(gS, (0, Wc - W)).reshape(-1)
+            tau_ = tau.detach()
             for blk in plan.chunks():
                 w = gS.index_select(0, blk.pix().reshape(-1)).view(-1, blk.width)
-                d, k, t, ux, uy = signed_distance(geom.index_select(0, blk.face), K, blk, track=True)
+                # blocks with a saturated pair (forward) run eagerly: their masks need data-dependent code
+                fused = plan.fused is not None and id(blk) in plan.fused.unsaturated
+                out = plan.fused.backward(geom, blk.face, blk.px(), blk.py, tau_, x_cut, w) if fused else None
+                if out is not None:
+                    scatter(blk, out[0])
+                    if want_tau:
+                        gtau = gtau + out[1]
+                    continue
+                d, k, t, ux, uy = signed_distance(geom.index_select(0, blk.face), K, blk.px(), blk.py, track=True)
                 gd = local_grad(blk, d, w, lambda x: _generator_terms(dist, tcn, x, eps, x_cut)[0])
                 if gd is not None:
-                    scatter(blk, gd, k, t, ux, uy)
+                    scatter(blk, edge_sums(gd, k, t, ux, uy, K))
         else:  # max: the gradient goes to one face attaining the maximum
             A, gA = (torch.nn.functional.pad(t, (0, Wc - W)) for t in (A, gA))
             for r0, r1, blk in plan.bands():
@@ -616,7 +662,7 @@ class SoftAlpha(torch.autograd.Function):
                 pix = blk.pix().reshape(-1).long()
                 Ap = A[:, r0:r1].reshape(-1)[pix].view(-1, blk.width)
                 w = gA[:, r0:r1].reshape(-1)[pix].view(-1, blk.width)
-                d, k, t, ux, uy = signed_distance(geom.index_select(0, blk.face), K, blk, track=True)
+                d, k, t, ux, uy = signed_distance(geom.index_select(0, blk.face), K, blk.px(), blk.py, track=True)
                 with torch.no_grad():
                     pm = _coverage_max(dist, dist.argument(ops, d, tau), eps, x_cut)
                 win = ((pm == Ap) & (pm > 0)).reshape(-1)
@@ -624,7 +670,7 @@ class SoftAlpha(torch.autograd.Function):
                 w = torch.where(win.view(-1, blk.width), w, 0.0)
                 gd = local_grad(blk, d, w, lambda x: _coverage_max(dist, x, eps, x_cut))
                 if gd is not None:
-                    scatter(blk, gd, k, t, ux, uy)
+                    scatter(blk, edge_sums(gd, k, t, ux, uy, K))
         gP = gP.view(4, *X.shape)
         gX = gP[0] + gP[2].roll(1, 1)  # edge k − 1 ends at corner k
         gY = gP[1] + gP[3].roll(1, 1)
@@ -663,7 +709,7 @@ def rgb_band(plan, X, Y, shade, tau, band, tex=None):
     if blk is None:
         bg = torch.as_tensor(s.background, dtype=X.dtype, device=X.device)
         return bg.expand(fc.B, r1 - r0, W, 3)
-    d = signed_distance(edge_table(X, Y).index_select(0, blk.face), fc.K, blk)
+    d = signed_distance(edge_table(X, Y).index_select(0, blk.face), fc.K, blk.px(), blk.py)
     inside = d >= 0  # outside, d <= −sqrt(tiny)
     x = s.distribution.argument(ops, d, tau).reshape(-1)
     p = _coverage_max(s.distribution, x, s.eps, s.cutoff_argument(ops, tau.detach()))  # 0 where culled
@@ -773,7 +819,8 @@ def _texel(settings, fc, sh, b, face):
     return torch.lerp(top, bot, fy)
 
 
-def render(settings, camera, verts, faces, colors, per_face, texture=None):
+def render(settings, camera, verts, faces, colors, per_face, texture=None, compile=False):
+    """RGBA [B, H, W, 4]; ``compile``: alpha's per-pair chains fused by torch.compile (see fused)."""
     H, W = settings.image_size
     fc = prepare_faces(settings, camera, verts, faces, colors, per_face, texture)
     tau = settings.tau
@@ -781,6 +828,9 @@ def render(settings, camera, verts, faces, colors, per_face, texture=None):
     radius = settings.culling_distance(settings.tau_value)
     with torch.no_grad():
         plan = Plan(settings, fc, *pixel_ranges(fc, H, W, radius))
+    if compile:
+        plan.fused = FusedChains(settings.distribution, settings.tconorm, settings.eps,
+                                 settings.cutoff is not None, fc.K, verts.device.type)
     alpha = SoftAlpha.apply(fc.X, fc.Y, tau, plan, *learnable_tensors(settings, verts.dtype, verts.device))
     if fc.shade is None:
         return torch.cat([alpha.new_zeros(*alpha.shape, 3), alpha[..., None]], -1)
@@ -816,7 +866,7 @@ def rasterize(settings, camera, verts, faces):
         fid = torch.full((npix,), -1, dtype=torch.long, device=device)
         vals = torch.zeros(npix, 8, dtype=dtype, device=device)  # bary (3), depth, normal (3), unused
         if blk is not None:
-            d = signed_distance(geom.index_select(0, blk.face), fc.K, blk)
+            d = signed_distance(geom.index_select(0, blk.face), fc.K, blk.px(), blk.py)
             face, pix, px, py = blk.flat()
             pix = pix.long()
             sh = fc.shade.index_select(1, face)

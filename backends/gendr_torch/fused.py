@@ -1,0 +1,103 @@
+"""Opt-in fused per-pair chains for the torch backend (``Renderer(backend="torch", compile=True)``).
+
+Eager PyTorch runs each elementwise operation of a block's per-pair chain as its own pass over
+memory; ``torch.compile`` (Inductor: C++/OpenMP on CPU, Triton on CUDA) fuses the chain into a
+few loops. Two chains are compiled per (distribution, T-conorm, eps, cut-off, polygon size):
+
+* forward: gather the block's faces → signed distance → x → generator terms g (culled pairs 0),
+  plus a finiteness check of the block;
+* backward: tracked signed distance → ∂g/∂x by forward-mode AD (``torch.func.jvp``, elementwise)
+  → per row and edge the four corner sums, and the block's ∂L/∂τ.
+
+Everything else (plans, index_add, the per-pixel T-conorm) stays eager. Blocks the fused chains do
+not cover run eagerly, with identical formulas: a block with a saturated pair (g infinite: the
+eager path's masks handle it), learnable T-conorm / distribution parameters, max-type T-conorms,
+RGB blends. If compilation fails (no C++ compiler, an unsupported formula) a ``RuntimeWarning``
+says why and this process renders eagerly from then on. Results equal eager up to float rounding
+(the compiler may contract multiply-adds), see docs/performance.md.
+"""
+from __future__ import annotations
+
+import warnings
+
+import torch
+
+from .ops import torch_ops as ops
+
+_COMPILED = {}  # key -> (forward, backward) compiled callables
+_BROKEN = []  # the reason compilation failed in this process (then everything runs eager)
+
+
+def generator_chain(dist, tcn, eps, K):
+    """The forward chain of one block, as a function of tensors only (what gets compiled)."""
+    from .raster import culling_argument, generator_unsaturated, signed_distance
+    x_min = culling_argument(dist, eps)  # a constant of the compiled code
+
+    def forward(geom, face, px, py, tau, x_cut):
+        d = signed_distance(geom.index_select(0, face), K, px, py)
+        return generator_unsaturated(dist, tcn, dist.argument(ops, d, tau), x_min, x_cut)
+    return forward
+
+
+def gradient_chain(dist, tcn, eps, K):
+    """The backward chain of one block (no pair saturated in it): (corner sums [K, 4, R], ∂L/∂τ)."""
+    from .raster import culling_argument, edge_sums, keep_mask, pair_terms, signed_distance
+    x_min = culling_argument(dist, eps)
+
+    def backward(geom, face, px, py, tau, x_cut, w):
+        # (px and w [R, width] as inputs: shapes derived in here by broadcasting would make
+        # torch.func.jvp specialise the compiled code to one block size)
+        d, k, t, ux, uy = signed_distance(geom.index_select(0, face), K, px, py, track=True)
+        # torch.func.jvp only over the pair terms, of x alone: a tensor it did not make (τ, a mask)
+        # combined inside it makes the compiled code specialise to one block size (torch 2.13)
+        x = dist.argument(ops, d, tau)
+        x_d, x_tau = dist.argument_derivative(ops, d, tau), -x / tau
+        _, g_x = torch.func.jvp(lambda xx: pair_terms(dist, tcn, xx)[0], (x,), (torch.ones_like(x),))
+        wg = w * g_x
+        keep = keep_mask(x, x_min, x_cut)  # (outside the jvp, as any tensor it did not make)
+        if keep is not None:
+            wg = wg * keep
+        return edge_sums(wg * x_d, k, t, ux, uy, K), (wg * x_tau).sum()
+    return backward
+
+
+class FusedChains:
+    """The compiled chains of one renderer instance, or eager fallbacks (``None`` results)."""
+
+    def __init__(self, dist, tcn, eps, has_cut, K, device_type):
+        self.key = (dist, tcn, float(eps), bool(has_cut), int(K), device_type)
+        self.ok = not (_BROKEN or dist.learnable or tcn.learnable or not tcn.streams)
+        self.unsaturated = set()  # ids of the plan's blocks whose forward ran fused (no pair saturated)
+
+    def _chains(self):
+        if self.key not in _COMPILED:
+            dist, tcn, eps, _, K, _ = self.key
+            _COMPILED[self.key] = tuple(torch.compile(f(dist, tcn, eps, K), dynamic=True, fullgraph=True)
+                                        for f in (generator_chain, gradient_chain))
+        return _COMPILED[self.key]
+
+    def _call(self, which, *args):
+        if not self.ok or _BROKEN:
+            return None
+        try:
+            return self._chains()[which](*args)
+        except Exception as e:  # compiler missing or a formula the compiler rejects: render eagerly
+            _BROKEN.append(f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}")
+            warnings.warn(f"gendr torch backend: compile=True failed ({_BROKEN[0]}); rendering eagerly "
+                          "in this process", RuntimeWarning, stacklevel=4)
+            return None
+
+    def forward(self, *block):
+        """(g [R, width], check: finite unless a pair saturated) or None: run this block eagerly.
+        ``block``: geom, face, px, py (see raster.Block), tau, x_cut."""
+        return self._call(0, *block)
+
+    def backward(self, *block_w):
+        """(corner sums [K, 4, R], ∂L/∂τ) or None: run this block eagerly. ``block_w``:
+        as for forward, then ∂L/∂S per pair [R, width]."""
+        return self._call(1, *block_w)
+
+
+def compile_status():
+    """None while compilation works in this process, else why it failed (renders run eagerly)."""
+    return _BROKEN[0] if _BROKEN else None
