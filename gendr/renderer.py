@@ -1,6 +1,8 @@
 """The :class:`Renderer` facade: validated settings + a backend plug-in that does the work."""
 from __future__ import annotations
 
+import inspect
+
 import math
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
@@ -144,6 +146,11 @@ def load_backend(name: str, **options):
         raise BackendUnavailableError(
             f"backend {name!r} is registered but cannot be imported ({exc}); install its extra, "
             f"e.g. `pip install gendr[{name}]`") from exc
+    params = inspect.signature(cls).parameters.values()
+    accepted = [p.name for p in params if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
+    unknown = sorted(set(options) - set(accepted))
+    if unknown and not any(p.kind == p.VAR_KEYWORD for p in params):
+        raise ParameterError(f"backend {name!r} has no option {unknown[0]!r} (its options: {', '.join(accepted)})")
     return cls(**options)
 
 

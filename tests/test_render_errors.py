@@ -279,3 +279,11 @@ def test_import_gendr_does_not_import_torch():
             "gendr.PerspectiveCamera(); "
             "assert 'torch' not in sys.modules, sorted(m for m in sys.modules if 'torch' in m)")
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+@pytest.mark.parametrize("backend, option", [("torch", "freeze"), ("drjit", "compile"), ("torch", "devcie")])
+def test_unknown_backend_option_is_a_parameter_error(backend, option):
+    if backend not in gendr.available_backends():
+        pytest.skip(f"backend {backend} not installed")
+    with pytest.raises(ParameterError, match=f"backend '{backend}' has no option '{option}'"):
+        gendr.Renderer(backend=backend, **{option: True})
