@@ -354,9 +354,9 @@ class Plan:
         """The Block of rows ``sel``; output pixels indexed in [B, nrows, Wc] from image row r0."""
         H, W = self.settings.image_size
         nrows = H if nrows is None else nrows
-        face, row = self.face[sel], self.row[sel]
-        width = int(self.rwidth[sel].max())
-        col0 = self.j0.long()[face]
+        face, row = self.face.index_select(0, sel), self.row.index_select(0, sel)  # (faster than [sel])
+        width = int(self.rwidth.index_select(0, sel).max())
+        col0 = self.j0.long().index_select(0, face)
         dtype, device = self.fc.X.dtype, face.device
         pix0 = (((face // self.fc.F) * nrows + row - r0) * self.Wc + col0).int()[:, None]
         xnum = (2 * col0 + 1 - W).to(dtype)[:, None]
@@ -601,7 +601,8 @@ class SoftAlpha(torch.autograd.Function):
             return (None, None, None, None, *[None] * len(tparams))
         want_tau = ctx.needs_input_grad[2]
         geom = edge_table(X, Y)
-        gP = X.new_zeros(4, X.numel())  # per (face, edge k): the parts for corner k (x, y), corner k + 1 (x, y)
+        gP = X.new_zeros(X.numel() * 4)  # per (face, edge k): the parts for corner k (x, y), corner k + 1 (x, y)
+        slots = torch.arange(4 * K, device=X.device)
         gtau = torch.zeros((), dtype=X.dtype, device=X.device)
 
         def local_grad(blk, d, w, formula):
@@ -623,12 +624,11 @@ class SoftAlpha(torch.autograd.Function):
             return grads[0]
 
         def scatter(blk, sums):
-            # sums over each row's pixels per nearest edge (edge_sums), then per face: index_add
-            # per pair is slow where neighbouring pairs hit the same face and edge
-            for e in range(K):
-                idx = blk.face * K + e
-                for i in range(4):
-                    gP[i].index_add_(0, idx, sums[e, i])
+            # sums over each row's pixels per nearest edge (edge_sums), then one index_add per
+            # block into the (face, edge, part) slots: per pair it is slow where neighbouring
+            # pairs hit the same slot; here neighbours are the 4K distinct slots of one row
+            idx = (blk.face[:, None] * (4 * K) + slots).reshape(-1)
+            gP.index_add_(0, idx, sums.permute(2, 0, 1).reshape(-1))
 
         if tcn.streams:
             with torch.enable_grad():  # dL/dS = dL/dA · dA/dS, per pixel (and the direct ∂g⁻¹/∂p)
@@ -671,9 +671,9 @@ class SoftAlpha(torch.autograd.Function):
                 gd = local_grad(blk, d, w, lambda x: _coverage_max(dist, x, eps, x_cut))
                 if gd is not None:
                     scatter(blk, edge_sums(gd, k, t, ux, uy, K))
-        gP = gP.view(4, *X.shape)
-        gX = gP[0] + gP[2].roll(1, 1)  # edge k − 1 ends at corner k
-        gY = gP[1] + gP[3].roll(1, 1)
+        gP = gP.view(*X.shape, 4)
+        gX = gP[..., 0] + gP[..., 2].roll(1, 1)  # edge k − 1 ends at corner k
+        gY = gP[..., 1] + gP[..., 3].roll(1, 1)
         it = iter(gp)
         gparams = [next(it).reshape(t.shape) if w else None for t, w in zip(tparams, want_p)]
         return (gX, gY, gtau.reshape(tau.shape), None, *gparams)
