@@ -30,24 +30,22 @@ _BROKEN = []  # the reason compilation failed in this process (then everything r
 
 def generator_chain(dist, tcn, eps, K):
     """The forward chain of one block, as a function of tensors only (what gets compiled)."""
-    from .raster import culling_argument, generator_unsaturated, signed_distance
+    from .raster import Block, culling_argument, generator_unsaturated, signed_distance
     x_min = culling_argument(dist, eps)  # a constant of the compiled code
 
-    def forward(geom, face, px, py, tau, x_cut):
-        d = signed_distance(geom.index_select(0, face), K, px, py)
+    def forward(geom, face, xnum, cnum, H, py, tau, x_cut):
+        d = signed_distance(geom.index_select(0, face), K, Block.screen_x(xnum, cnum, H), py)
         return generator_unsaturated(dist, tcn, dist.argument(ops, d, tau), x_min, x_cut)
     return forward
 
 
 def gradient_chain(dist, tcn, eps, K):
     """The backward chain of one block (no pair saturated in it): (corner sums [K, 4, R], ∂L/∂τ)."""
-    from .raster import culling_argument, edge_sums, keep_mask, pair_terms, signed_distance
+    from .raster import Block, culling_argument, edge_sums, keep_mask, pair_terms, signed_distance
     x_min = culling_argument(dist, eps)
 
-    def backward(geom, face, px, py, tau, x_cut, w):
-        # (px and w [R, width] as inputs: shapes derived in here by broadcasting would make
-        # torch.func.jvp specialise the compiled code to one block size)
-        d, k, t, ux, uy = signed_distance(geom.index_select(0, face), K, px, py, track=True)
+    def backward(geom, face, xnum, cnum, H, py, tau, x_cut, w):
+        d, k, t, ux, uy = signed_distance(geom.index_select(0, face), K, Block.screen_x(xnum, cnum, H), py, track=True)
         # torch.func.jvp only over the pair terms, of x alone: a tensor it did not make (τ, a mask)
         # combined inside it makes the compiled code specialise to one block size (torch 2.13)
         x = dist.argument(ops, d, tau)
@@ -89,7 +87,7 @@ class FusedChains:
 
     def forward(self, *block):
         """(g [R, width], check: finite unless a pair saturated) or None: run this block eagerly.
-        ``block``: geom, face, px, py (see raster.Block), tau, x_cut."""
+        ``block``: geom, face, xnum, cnum, H, py (see raster.Block), tau, x_cut."""
         return self._call(0, *block)
 
     def backward(self, *block_w):

@@ -319,7 +319,11 @@ class Block:
 
     def px(self):
         """Screen X [R, width], rounded exactly as (2j + 1 − W)/H."""
-        return (self.xnum + self.cnum).div_(self.H)
+        return self.screen_x(self.xnum, self.cnum, self.H)
+
+    @staticmethod
+    def screen_x(xnum, cnum, H):
+        return (xnum + cnum) / H
 
     def pix(self):
         return self.pix0 + torch.arange(self.width, dtype=torch.int32, device=self.pix0.device)
@@ -552,7 +556,7 @@ class SoftAlpha(torch.autograd.Function):
         if tcn.streams:  # archimedean T-conorms and the mean: a scatter-added sum per pixel
             nsat = torch.zeros(B * H * Wc, dtype=torch.int32, device=X.device)
             for blk in plan.chunks():
-                out = plan.fused.forward(geom, blk.face, blk.px(), blk.py, tau, x_cut) if plan.fused else None
+                out = plan.fused.forward(geom, blk.face, blk.xnum, blk.cnum, blk.H, blk.py, tau, x_cut) if plan.fused else None
                 if out is not None and bool(torch.isfinite(out[1])):
                     g, sat = out[0], None
                     plan.fused.unsaturated.add(id(blk))
@@ -644,7 +648,7 @@ class SoftAlpha(torch.autograd.Function):
                 w = gS.index_select(0, blk.pix().reshape(-1)).view(-1, blk.width)
                 # blocks with a saturated pair (forward) run eagerly: their masks need data-dependent code
                 fused = plan.fused is not None and id(blk) in plan.fused.unsaturated
-                out = plan.fused.backward(geom, blk.face, blk.px(), blk.py, tau_, x_cut, w) if fused else None
+                out = plan.fused.backward(geom, blk.face, blk.xnum, blk.cnum, blk.H, blk.py, tau_, x_cut, w) if fused else None
                 if out is not None:
                     scatter(blk, out[0])
                     if want_tau:
