@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import inspect
-
 import math
 from dataclasses import dataclass, field, replace
 from functools import lru_cache

@@ -2,7 +2,7 @@
 
 Eager PyTorch runs each elementwise operation of a block's per-pair chain as its own pass over
 memory; ``torch.compile`` (Inductor: C++/OpenMP on CPU, Triton on CUDA) fuses the chain into a
-few loops. Two chains are compiled per (distribution, T-conorm, eps, cut-off, polygon size):
+few loops. Two chains are compiled per (distribution, T-conorm, eps, polygon size, device type):
 
 * forward: gather the block's faces → signed distance → x → generator terms g (culled pairs 0),
   plus a finiteness check of the block;
@@ -62,14 +62,14 @@ def gradient_chain(dist, tcn, eps, K):
 class FusedChains:
     """The compiled chains of one renderer instance, or eager fallbacks (``None`` results)."""
 
-    def __init__(self, dist, tcn, eps, has_cut, K, device_type):
-        self.key = (dist, tcn, float(eps), bool(has_cut), int(K), device_type)
+    def __init__(self, dist, tcn, eps, K, device_type):
+        self.key = (dist, tcn, float(eps), int(K), device_type)
         self.ok = not (_BROKEN or dist.learnable or tcn.learnable or not tcn.streams)
-        self.unsaturated = set()  # ids of the plan's blocks whose forward ran fused (no pair saturated)
+        self._unsaturated = set()  # ids of the blocks whose forward ran fused (no pair saturated)
 
     def _chains(self):
         if self.key not in _COMPILED:
-            dist, tcn, eps, _, K, _ = self.key
+            dist, tcn, eps, K, _ = self.key
             _COMPILED[self.key] = tuple(torch.compile(f(dist, tcn, eps, K), dynamic=True, fullgraph=True)
                                         for f in (generator_chain, gradient_chain))
         return _COMPILED[self.key]
@@ -85,15 +85,21 @@ class FusedChains:
                           "in this process", RuntimeWarning, stacklevel=4)
             return None
 
-    def forward(self, *block):
-        """(g [R, width], check: finite unless a pair saturated) or None: run this block eagerly.
-        ``block``: geom, face, xnum, cnum, H, py (see raster.Block), tau, x_cut."""
-        return self._call(0, *block)
+    def forward(self, geom, blk, tau, x_cut):
+        """Generator terms g [R, width] of raster.Block ``blk``, or None: run it eagerly (also when
+        a pair saturated: the eager path's masks handle that, in the backward too)."""
+        out = self._call(0, geom, blk.face, blk.xnum, blk.cnum, blk.H, blk.py, tau, x_cut)
+        if out is None or not bool(torch.isfinite(out[1])):
+            return None
+        self._unsaturated.add(id(blk))
+        return out[0]
 
-    def backward(self, *block_w):
-        """(corner sums [K, 4, R], ∂L/∂τ) or None: run this block eagerly. ``block_w``:
-        as for forward, then ∂L/∂S per pair [R, width]."""
-        return self._call(1, *block_w)
+    def backward(self, geom, blk, tau, x_cut, w):
+        """(corner sums [K, 4, R], ∂L/∂τ) of ``blk`` given ∂L/∂S per pair ``w`` [R, width], or None:
+        run it eagerly (so do the blocks whose forward did)."""
+        if id(blk) not in self._unsaturated:
+            return None
+        return self._call(1, geom, blk.face, blk.xnum, blk.cnum, blk.H, blk.py, tau, x_cut, w)
 
 
 def compile_status():

@@ -469,21 +469,25 @@ def _generator_parts(dist, tcn, x, x_min, x_cut):
 
 def generator_unsaturated(dist, tcn, x, x_min, x_cut=None):
     """Per-pair generator values g(p), culled pairs 0 (coverage < eps, tested as x < x_min =
-    F⁻¹(eps), see culling_argument, like the Dr.Jit backend; and with ``x_cut``, x <= x_cut, the reference cut-off of
-    RenderSettings.cutoff_argument), assuming no pair saturates, and a check: a 0-d tensor that is
-    finite exactly when none did (p < 1 and g finite everywhere). No data-dependent branch (this
-    is what ``compile=True`` fuses). The mean (``average``) sums p itself (TConorm.pair_term),
-    culled alike, and never saturates: a face with p = 1 just adds 1."""
+    F⁻¹(eps), see culling_argument, like the Dr.Jit backend; and with ``x_cut``, x <= x_cut, the
+    reference cut-off of RenderSettings.cutoff_argument), assuming no pair saturates, and a check:
+    a 0-d tensor that is finite exactly when none did (p < 1 and g finite everywhere). No
+    data-dependent branch (this is what ``compile=True`` fuses). The mean (``average``) sums p
+    itself (TConorm.pair_term), culled alike, and never saturates: a face with p = 1 just adds 1."""
     g, keep, _, log1m = _generator_parts(dist, tcn, x, x_min, x_cut)
-    check = g.new_zeros(()) if log1m is None else ops.detach(log1m).sum() + ops.detach(g).sum()
-    return (g * keep if keep is not None else g), check
+    return (g * keep if keep is not None else g), _saturation_check(g, log1m)
+
+
+def _saturation_check(g, log1m):
+    """Finite exactly when no pair saturated (0-d; the mean, log1m None, never saturates)."""
+    return g.new_zeros(()) if log1m is None else ops.detach(log1m).sum() + ops.detach(g).sum()
 
 
 def _generator_terms(dist, tcn, x, eps, x_cut=None):
     """Per-pair generator values (see generator_unsaturated) and the mask of saturated pairs
     (p = 1, or g overflowed), which set their pixel's alpha to 1 (None: none)."""
     g, keep, p, log1m = _generator_parts(dist, tcn, x, culling_argument(dist, eps), x_cut)
-    if log1m is None or bool(torch.isfinite(log1m.detach().sum() + g.detach().sum())):  # nothing saturated
+    if bool(torch.isfinite(_saturation_check(g, log1m))):  # the usual case: nothing saturated
         return (g * keep if keep is not None else g), None
     sat = ~torch.isfinite(log1m)
     g = tcn.generator(ops, torch.where(sat, 0.5, p), torch.where(sat, math.log(0.5), log1m))
@@ -556,10 +560,9 @@ class SoftAlpha(torch.autograd.Function):
         if tcn.streams:  # archimedean T-conorms and the mean: a scatter-added sum per pixel
             nsat = torch.zeros(B * H * Wc, dtype=torch.int32, device=X.device)
             for blk in plan.chunks():
-                out = plan.fused.forward(geom, blk.face, blk.xnum, blk.cnum, blk.H, blk.py, tau, x_cut) if plan.fused else None
-                if out is not None and bool(torch.isfinite(out[1])):
-                    g, sat = out[0], None
-                    plan.fused.unsaturated.add(id(blk))
+                g = plan.fused.forward(geom, blk, tau, x_cut) if plan.fused else None
+                if g is not None:
+                    sat = None
                 else:
                     d = signed_distance(geom.index_select(0, blk.face), K, blk.px(), blk.py)
                     g, sat = _generator_terms(dist, tcn, dist.argument(ops, d, tau), eps, x_cut)
@@ -643,12 +646,10 @@ class SoftAlpha(torch.autograd.Function):
                 if g is not None:
                     gp[i] = gp[i] + g
             gS = torch.nn.functional.pad(gS, (0, Wc - W)).reshape(-1)
-            tau_ = tau.detach()
+            tau_value = tau.detach()
             for blk in plan.chunks():
                 w = gS.index_select(0, blk.pix().reshape(-1)).view(-1, blk.width)
-                # blocks with a saturated pair (forward) run eagerly: their masks need data-dependent code
-                fused = plan.fused is not None and id(blk) in plan.fused.unsaturated
-                out = plan.fused.backward(geom, blk.face, blk.xnum, blk.cnum, blk.H, blk.py, tau_, x_cut, w) if fused else None
+                out = plan.fused.backward(geom, blk, tau_value, x_cut, w) if plan.fused else None
                 if out is not None:
                     scatter(blk, out[0])
                     if want_tau:
@@ -833,8 +834,7 @@ def render(settings, camera, verts, faces, colors, per_face, texture=None, compi
     with torch.no_grad():
         plan = Plan(settings, fc, *pixel_ranges(fc, H, W, radius))
     if compile:
-        plan.fused = FusedChains(settings.distribution, settings.tconorm, settings.eps,
-                                 settings.cutoff is not None, fc.K, verts.device.type)
+        plan.fused = FusedChains(settings.distribution, settings.tconorm, settings.eps, fc.K, verts.device.type)
     alpha = SoftAlpha.apply(fc.X, fc.Y, tau, plan, *learnable_tensors(settings, verts.dtype, verts.device))
     if fc.shade is None:
         return torch.cat([alpha.new_zeros(*alpha.shape, 3), alpha[..., None]], -1)
