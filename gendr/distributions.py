@@ -557,29 +557,40 @@ DISTRIBUTIONS.add(DistributionFamily(
 
 # --- Cauchy -------------------------------------------------------------------------------------
 
-def _cauchy_sf(ops, x):
-    far = x > 1.0
-    xp = ops.where(far, x, 1.0)
-    xn = ops.where(far, 0.0, x)
-    # 1 − F(x) = atan(1/x)/π for x > 1 (no cancellation in the right tail)
-    return ops.where(far, ops.atan(1.0 / xp) / math.pi, 0.5 - ops.atan(xn) / math.pi)
+def _cauchy_tail(ops, a):
+    """(t, r) for a >= 0: t = 1 − F(a) = F(−a) with one atan of an argument in [0, 1], r = that
+    argument (1/a above 1, where t = atan(1/a)/π keeps its relative accuracy: no cancellation)."""
+    big = a > 1.0
+    r = ops.where(big, 1.0 / ops.where(big, a, 1.0), a)
+    phi = ops.atan(r) / math.pi
+    return ops.where(big, phi, 0.5 - phi), r
+
+
+def _cauchy_cdf(ops, x):
+    # the tail of |x| (split with where, not abs: autograd's d|x|/dx is 0 at 0), mirrored for x >= 0
+    pos = x >= 0.0
+    t, _ = _cauchy_tail(ops, ops.where(pos, x, -x))
+    return ops.where(pos, 1.0 - t, t)
 
 
 def _cauchy_log_sf(ops, x):
-    # beyond x = 1e4: log(atan(u)/(π u)) with u = 1/x, = −log(πx) − u²/3 + O(u⁴) (finite gradient
-    # up to float32's largest x, where atan(1/x) is subnormal)
+    # log t on the right (t = atan(1/x)/π relatively accurate), log1p(−t) on the left (t <= 1/2);
+    # the same atan as the CDF's, so a backend that merges common work (Dr.Jit) evaluates one.
+    # Beyond x = 1e4: log(atan(r)/π) = log r − log π − r²/3 + O(r⁴), finite up to float32's largest
+    # x, where atan(1/x) is subnormal
+    pos = x > 0.0
+    t, r = _cauchy_tail(ops, ops.where(pos, x, -x))
     far = x > 1e4
-    u = 1.0 / ops.where(far, x, 1e4)
-    x_near = ops.where(far, 0.0, x)
-    return ops.where(far, ops.log(u) - math.log(math.pi) - u * u / 3.0,
-                     ops.log(_cauchy_sf(ops, x_near)))
+    right = ops.log(ops.where(pos, ops.where(far, r, t), 1.0)) - ops.where(far, math.log(math.pi) + r * r / 3.0, 0.0)
+    return ops.where(pos, right, ops.log1p(-ops.where(pos, 0.0, t)))
 
 
 DISTRIBUTIONS.add(DistributionFamily(
-    "cauchy", lambda ops, x: _cauchy_sf(ops, -x),
+    "cauchy", _cauchy_cdf,
     lambda ops, x: 1.0 / (math.pi * (1.0 + x * x)),
     support=_unbounded, tails=(HEAVY, HEAVY),
     log_sf=_cauchy_log_sf, log_cdf=_mirror(_cauchy_log_sf),
+    accurate_logs=True,
     doc="Standard Cauchy: F(x) = 1/2 + atan(x)/π, f(x) = 1/(π(1 + x²)). Heavy tails "
         "(1 − F ~ 1/(πx)): the culling radius τ/(π·ε) is finite but of no practical use.",
 ))
@@ -896,16 +907,23 @@ def _levy_log_sf(ops, x):
 
 
 def _levy_log_cdf(ops, x):
-    # log erfc(z) = log 2 + log Q(z·√2) with z·√2 = sqrt(1/x); x held >= 1e-30 (value −5e29 there)
+    # log erfc(z), z = sqrt(1/(2x)): log1p(−erf z) for z < 1/2 (F near 1: keeps log F's relative
+    # accuracy, which log 2 + log Q(z·√2) loses to cancellation), else log 2 + log Q(z·√2);
+    # x held >= 1e-30 (value −5e29 there)
     pos = x > 0.0
     xs = ops.where(pos, ops.where(x > 1e-30, x, 1e-30), 1.0)
-    return ops.where(pos, _LN2 + _gaussian_log_sf(ops, ops.sqrt(1.0 / xs)), -math.inf)
+    w = ops.sqrt(1.0 / xs)  # z·√2
+    near_one = w < 0.5 * math.sqrt(2.0)
+    val = ops.where(near_one, ops.log1p(-ops.erf(ops.where(near_one, w, 0.0) * math.sqrt(0.5))),
+                    _LN2 + _gaussian_log_sf(ops, ops.where(near_one, 1.0, w)))
+    return ops.where(pos, val, -math.inf)
 
 
 DISTRIBUTIONS.add(DistributionFamily(
     "levy", _levy_cdf, _levy_pdf,
     support=lambda: (0.0, math.inf), tails=(BOUNDED, HEAVY),
     log_sf=_levy_log_sf, log_cdf=_levy_log_cdf,
+    accurate_logs=True,
     doc="Standard Lévy: F(x) = erfc(sqrt(1/(2x))) for x > 0, 0 below; "
         "f(x) = exp(−1/(2x)) / sqrt(2π x³). Heavy right tail (1 − F ~ sqrt(2/(πx))): reversed, "
         "its culling radius ≈ 2τ/(π ε²) is finite but of no practical use.",
