@@ -858,10 +858,12 @@ def alpha_max(s, fc, T, ops, pix, tau):
         better = p > best
         return w, bits, dr.select(better, p, best), dr.select(better, f, arg)
 
+    hard_or = tcn.kind != MAX  # the logical "or": decided once some face covers with p >= 1/2
     with dr.suspend_grad():
         _, _, best, arg = dr.while_loop((*pix.start(), dr.zeros(T.Float, pix.n), dr.full(T.UInt32, _NONE, pix.n)),
-                                        lambda w, bits, b, a: bits != 0, body, labels=("w", "bits", "best", "arg"))
-    if tcn.kind != MAX:  # the hard logical "or"
+                                        lambda w, bits, b, a: (bits != 0) & (b < 0.5) if hard_or else bits != 0,
+                                        body, labels=("w", "bits", "best", "arg"))
+    if hard_or:
         return dr.select(best >= 0.5, T.Float(1.0), T.Float(0.0))  # typed: plain floats give float32
     has = arg != _NONE
     f = dr.select(has, arg, 0)
