@@ -4,6 +4,7 @@ change of shapes (F, image size, clipping) records anew; plus the hand-written b
 archimedean alpha sum against Dr.Jit's generic reverse-mode loop, and the device-side binning."""
 from __future__ import annotations
 
+import math
 import numpy as np
 import pytest
 
@@ -213,6 +214,15 @@ def test_mask_budget_picks_larger_tiles(monkeypatch):
     monkeypatch.setattr(R, "MASK_BYTES", 200_000)
     assert R.tile_size(1, 256, 256, 1280) == 8
     assert R.tile_size(1, 1024, 1024, 20480) == 32
+
+
+def test_wide_radius_picks_wide_tiles():
+    """A culling radius of half the image height or more (heavy tails) takes tiles of at least
+    WIDE_TILE pixels (the pair loops then use WIDE_STRIP rows; same results: test_tile_masks_any_tile_size)."""
+    assert R.tile_size(24, 64, 64, 1280, radius=0.55) == 4
+    assert R.tile_size(24, 64, 64, 1280, radius=1.0) == R.WIDE_TILE == 16
+    assert R.tile_size(24, 64, 64, 1280, radius=math.inf) == 16
+    assert R.wide_layout(math.inf) and not R.wide_layout(0.99)
 
 
 @pytest.mark.parametrize("dist,eps", [(("cauchy", {}), 0.0), (("gaussian", {"squared": True}), 1e-3),
