@@ -66,3 +66,15 @@ def test_pose_similarity_rank_correlation():
         r["pairs"], r["successes"] = 10, int(10 - 10 * r["metric"] / 2.5)
     assert pose_similarity(shape, pose).verdict == "reproduced"
     assert pose_similarity(shape[:2], pose[:2]).verdict == "not testable"
+
+
+def test_gamma_claim_needs_gamma_rows():
+    """Asymmetric rows without any gamma (a partial sweep) leave "gamma best" not testable; with
+    gamma rows the verdict follows them."""
+    asym_no_gamma = [d for d, lab in enumerate(DL) if lab.startswith(("gumbel", "exponential"))]
+    claim = "gamma best among the asymmetric distributions"
+    rows = [_row(d, 0, 1, 0.3 + 0.01 * d) for d in asym_no_gamma]
+    assert _verdicts(rows)[claim] == "not testable"
+    g = DL.index("gamma(2)")
+    assert _verdicts(rows + [_row(g, 0, 1, 0.1)])[claim] == "reproduced"
+    assert _verdicts(rows + [_row(g, 0, 1, 0.9)])[claim] == "contradicted"
