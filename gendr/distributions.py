@@ -557,29 +557,29 @@ DISTRIBUTIONS.add(DistributionFamily(
 
 # --- Cauchy -------------------------------------------------------------------------------------
 
-def _cauchy_tail(ops, a):
-    """(t, r) for a >= 0: t = 1 − F(a) = F(−a) with one atan of an argument in [0, 1], r = that
-    argument (1/a above 1, where t = atan(1/a)/π keeps its relative accuracy: no cancellation)."""
+def _cauchy_tail(ops, x):
+    """(pos, t, r): pos = x >= 0; t = F(−|x|) = min(F, 1 − F) from one atan of an argument in
+    [0, 1], r = that argument (1/|x| above 1, where t = atan(1/|x|)/π keeps its relative accuracy).
+    |x| is split with where, not abs (autograd's d|x|/dx is 0 at 0); the CDF and the log share this
+    split, so a backend that merges common work (Dr.Jit) evaluates one atan for both."""
+    pos = x >= 0.0
+    a = ops.where(pos, x, -x)
     big = a > 1.0
     r = ops.where(big, 1.0 / ops.where(big, a, 1.0), a)
     phi = ops.atan(r) / math.pi
-    return ops.where(big, phi, 0.5 - phi), r
+    return pos, ops.where(big, phi, 0.5 - phi), r
 
 
 def _cauchy_cdf(ops, x):
-    # the tail of |x| (split with where, not abs: autograd's d|x|/dx is 0 at 0), mirrored for x >= 0
-    pos = x >= 0.0
-    t, _ = _cauchy_tail(ops, ops.where(pos, x, -x))
+    pos, t, _ = _cauchy_tail(ops, x)
     return ops.where(pos, 1.0 - t, t)
 
 
 def _cauchy_log_sf(ops, x):
-    # log t on the right (t = atan(1/x)/π relatively accurate), log1p(−t) on the left (t <= 1/2);
-    # the same atan as the CDF's, so a backend that merges common work (Dr.Jit) evaluates one.
-    # Beyond x = 1e4: log(atan(r)/π) = log r − log π − r²/3 + O(r⁴), finite up to float32's largest
-    # x, where atan(1/x) is subnormal
-    pos = x > 0.0
-    t, r = _cauchy_tail(ops, ops.where(pos, x, -x))
+    # log t on the right (relatively accurate), log1p(−t) on the left (t <= 1/2). Beyond x = 1e4:
+    # log(atan(r)/π) = log r − log π − r²/3 + O(r⁴), finite up to float32's largest x, where
+    # atan(1/x) is subnormal
+    pos, t, r = _cauchy_tail(ops, x)
     far = x > 1e4
     right = ops.log(ops.where(pos, ops.where(far, r, t), 1.0)) - ops.where(far, math.log(math.pi) + r * r / 3.0, 0.0)
     return ops.where(pos, right, ops.log1p(-ops.where(pos, 0.0, t)))
