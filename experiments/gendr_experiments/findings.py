@@ -123,15 +123,16 @@ def shape_findings(rows, noise: float = 0.03) -> list[Finding]:
         # gamma best among the asymmetric distributions
         asym = [i for i, lab in enumerate(dl) if lab.startswith(("gumbel", "exponential", "gamma", "levy"))]
         am = {dl[i]: float(np.nanmean(M[:, i])) for i in asym if np.isfinite(M[:, i]).any()}
-        # (a claim about gamma needs gamma rows: without them it is not testable, not contradicted)
-        if any(k.startswith("gamma") for k in am) and len(am) > 1:
+        # (a claim about gamma needs gamma rows and others to beat: else not testable, not contradicted)
+        has_gamma = any(k.startswith("gamma") for k in am)
+        if has_gamma and len(am) > 1:
             top = min(am, key=am.get)
             out.append(Finding("gamma best among the asymmetric distributions",
                                "reproduced" if top.startswith("gamma") else "contradicted",
                                "best asymmetric rows: " + ", ".join(f"{k} {am[k]:.3f}" for k in sorted(am, key=am.get)[:4])))
         else:
-            out.append(Finding("gamma best among the asymmetric distributions", "not testable",
-                               "no gamma rows" if am else "no asymmetric rows"))
+            why = "no asymmetric rows" if not am else ("no other asymmetric rows" if has_gamma else "no gamma rows")
+            out.append(Finding("gamma best among the asymmetric distributions", "not testable", why))
 
         # T-conorm columns: each against the median column over the same cells
         def column_vs_median(labels, claim, good):
