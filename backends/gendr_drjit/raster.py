@@ -371,6 +371,28 @@ class Bins:
         with dr.suspend_grad():
             dr.while_loop((dr.zeros(UInt32, m),), lambda k: k < count, body, labels=("k",))
         self.mask = mask
+        self.mask_tiles = B * self.ntx * self.nty
+
+
+def tile_order(T, bins):
+    """``(order, slot)``: the tiles in descending order of their face counts (log-spaced classes,
+    four per octave; stable within a class), ``order[slot] = tile`` and its inverse ``slot[tile]``.
+    A SIMD packet of strip lanes spans several tiles and loops as long as its longest list; at a
+    silhouette most tiles are empty or short (24 × 64² paper views, τ = 0.003: 55 % empty, lanes
+    busy 59 % of the packet iterations), so neighbours in this order share a length (99.9 %
+    busy). A counting sort by one prefix sum on the device: no read-back, fixed sizes (freezable)."""
+    UInt32, n = T.UInt32, bins.mask_tiles
+    v = dr.block_sum(dr.popcnt(bins.mask), bins.nw) + 1  # face count + 1 per tile
+    e = 31 - dr.lzcnt(v)  # octave: floor(log2 v)
+    cls = 4 * e + ((v << 2) >> e) % 4  # and the two bits below the leading one
+    nc = 4 * (bins.F + 1).bit_length()
+    key = (nc - 1 - cls) * n + dr.arange(UInt32, n)  # descending classes, tile index within
+    flag = dr.zeros(UInt32, nc * n)
+    dr.scatter(flag, UInt32(1), key)
+    slot = dr.gather(UInt32, dr.prefix_sum(flag), key)
+    order = dr.zeros(UInt32, n)
+    dr.scatter(order, dr.arange(UInt32, n), slot)
+    return order, slot
 
 
 class Pixels:
@@ -379,14 +401,16 @@ class Pixels:
     (a strip; ``rows`` = 1: one pixel): the per-face reads and edge set-up of an iteration are shared
     by its pixels. ``py`` is the list of the strip's pixel-centre ordinates (``py[r]`` for row r);
     ``image_index`` maps row-major pixels (b, i, j) to ``r·n + lane`` (lanes of partial border tiles
-    outside the image are computed and dropped)."""
+    outside the image are computed and dropped). ``order``: :func:`tile_order`'s ``(order, slot)``,
+    the order in which the lanes take the tiles (None: row-major tiles)."""
 
-    def __init__(self, T, B, H, W, bins, rows=1):
+    def __init__(self, T, B, H, W, bins, rows=1, order=None):
         t, ntx, nty = bins.tile, bins.ntx, bins.nty
         per_tile = t * t // rows
         n = B * nty * ntx * per_tile
         lane = dr.arange(T.UInt32, n)
-        tile = lane // per_tile
+        slot = lane // per_tile
+        tile = slot if order is None else dr.gather(T.UInt32, order[0], slot)
         loc = lane % per_tile
         b = tile // (ntx * nty)
         tyx = tile % (ntx * nty)
@@ -401,7 +425,10 @@ class Pixels:
         self.bins, self.T = bins, T
         q = dr.arange(T.UInt32, B * H * W)
         jj, ii, bb = q % W, (q // W) % H, q // (H * W)
-        lane_of = ((bb * nty + ii // t) * ntx + jj // t) * per_tile + ((ii % t) // rows) * t + jj % t
+        tile_of = (bb * nty + ii // t) * ntx + jj // t
+        if order is not None:
+            tile_of = dr.gather(T.UInt32, order[1], tile_of)
+        lane_of = tile_of * per_tile + ((ii % t) // rows) * t + jj % t
         self.image_index = ((ii % t) % rows) * n + lane_of
 
     def start(self):
@@ -984,11 +1011,14 @@ def render_parts(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, colors
         cull_r = dr.opaque(T.Float, radius, 1) if math.isfinite(radius) else None
     fc.cull_lo = -cull_r if cull_r is not None else None
     bins = Bins(fc, H, W, cull_r if cull_r is not None else math.inf, T, radius)
-    pix1 = Pixels(T, fc.B, H, W, bins)  # one pixel per lane: max, "or", the RGB blends
+    strip = min(WIDE_STRIP if wide_layout(radius) else STRIP, bins.tile)
+    # a packet of strip lanes that spans tiles loops for its longest list: order the tiles (a packet
+    # is 8 or 16 lanes on the CPU, a CUDA warp 32; one pixel per lane fills it from one 4×4 tile)
+    order = tile_order(T, bins) if settings.tconorm.streams and bins.tile ** 2 // strip < 32 else None
+    pix1 = Pixels(T, fc.B, H, W, bins, order=order)  # one pixel per lane: max, "or", the RGB blends
     fc.S = fc.nsat = None
     if settings.tconorm.streams:  # archimedean T-conorms and the mean
-        strip = WIDE_STRIP if wide_layout(radius) else STRIP
-        strips = Pixels(T, fc.B, H, W, bins, rows=min(strip, bins.tile))
+        strips = Pixels(T, fc.B, H, W, bins, rows=strip, order=order)
         A = alpha_archimedean(settings, fc, T, ops, strips, pix1, tau, resid, keep_sums)
     else:
         A = pix1.to_image(alpha_max(settings, fc, T, ops, pix1, tau))
