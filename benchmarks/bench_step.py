@@ -19,7 +19,9 @@ no culling radius, every face reaches every pixel, so its steps are slow), and t
 ``torch``, ``torch-compiled`` (``compile=True``: per-pair chains fused by ``torch.compile``),
 ``drjit`` (LLVM, float32) or ``drjit-frozen`` (``freeze=True``: renders replayed by
 ``dr.freeze``). The model, loss and Adam are torch in every case (the drjit backend takes torch
-tensors through its torch bridge).
+tensors through its torch bridge). ``--threads`` go to the backend that renders; with drjit torch
+keeps one thread (``gendr_experiments.common.set_threads``: torch's idle OpenMP workers spin-wait
+and take cores from Dr.Jit's kernels), recorded as ``torch_threads``.
 
 Per case: the step time over ``--repeats`` steps after one warm-up step (median, min, max, stdev;
 repeats default to 10, 3 for cauchy), the step's loss, and the first call, set-up plus first step,
@@ -44,6 +46,7 @@ import torch
 
 import gendr
 from bench_render import emit, machine, measure, run_fresh, summary
+from gendr_experiments.common import set_threads
 from gendr_experiments.pose import PoseProblem
 from gendr_experiments.shape import ShapeProblem
 
@@ -74,10 +77,7 @@ def first_call(case, backend, dist, threads):
     """Build the problem and run its first step: (problem, {"setup_ms", "first_step_ms", "first_call_ms"})."""
     cls, cfg = CASES[case]
     name, options = BACKENDS[backend]
-    torch.set_num_threads(threads)
-    if name == "drjit":
-        import drjit as dr
-        dr.set_thread_count(threads)
+    set_threads(name, threads)  # drjit: torch keeps 1 thread (its idle workers spin)
     t0 = time.perf_counter()
     prob = cls(cfg, backend=name, distribution=dist, tconorm="probabilistic", backend_options=options)
     t1 = time.perf_counter()
@@ -98,7 +98,8 @@ def run_case(case, backend, dist, repeats, threads):
     out = {"case": case, "backend": BACKENDS[backend][0], "freeze": bool(BACKENDS[backend][1].get("freeze")),
            "compile": bool(BACKENDS[backend][1].get("compile")),
            "distribution": dist, "tconorm": "probabilistic", "renderer_tau": prob.renderer.settings.tau_value,
-           "faces": int(faces.shape[0]), "threads": threads, "loss_last": losses[-1]}
+           "faces": int(faces.shape[0]), "threads": threads, "torch_threads": torch.get_num_threads(),
+           "loss_last": losses[-1]}
     out |= summary(times) | first | {"first_call_cold": cold}
     if out["freeze"]:
         out["frozen_recordings"] = prob.renderer.backend.frozen.n_recordings

@@ -116,3 +116,24 @@ def test_pose_optimisation_recovers_a_small_perturbation():
     assert res["initial_error"] == pytest.approx(10.0, abs=1e-6)
     assert not res["nonfinite"]
     assert res["metric"] < 3.0 and res["success"]
+
+
+def test_set_threads_gives_the_threads_to_the_rendering_backend():
+    """drjit renders: torch keeps one thread (its idle OpenMP workers would spin beside Dr.Jit's
+    kernels) and Dr.Jit gets the threads; torch renders: torch gets them; nonsense is refused."""
+    from gendr.errors import ParameterError
+    from gendr_experiments.common import set_threads
+    dr = pytest.importorskip("drjit")
+    n_dr = dr.thread_count()
+    try:
+        torch.set_num_threads(2)
+        set_threads("drjit", 3)
+        assert torch.get_num_threads() == 1 and dr.thread_count() == 3
+        set_threads("torch", 2)
+        assert torch.get_num_threads() == 2 and dr.thread_count() == 3
+        set_threads("torch", None)
+        assert torch.get_num_threads() == 2
+        with pytest.raises(ParameterError, match="0"):
+            set_threads("torch", 0)
+    finally:
+        dr.set_thread_count(n_dr)

@@ -56,7 +56,8 @@ def _instance_options(p):
     g.add_argument("--cutoff", type=float, default=None,
                    help="the reference implementation's distance cut-off dist_eps (default: the protocol's: "
                         "quick none, paper 100)")
-    g.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
+    g.add_argument("--threads", type=int, default=None,
+                   help="compute threads of the backend (default: its own; with drjit torch keeps 1)")
 
 
 def _protocol_options(p):
@@ -109,13 +110,12 @@ POSE_OPTIONS = {"target": "target", "tau_start": "tau_start", "tau_end": "tau_en
 
 
 def cmd_shape(a) -> int:
+    from .common import set_threads
     from .shape import run_shape, shape_config, shape_target_views
     from .figures import silhouette_frame, write_gif
     _apply_data(a)
-    if a.threads:
-        import torch
-        torch.set_num_threads(a.threads)
     cfg = shape_config(_instance_config(a), **_given(a, SHAPE_OPTIONS))
+    set_threads(cfg["backend"], a.threads)
     frames, cb = [], None
     if a.gif:
         def cb(step, v, sil, loss):
@@ -144,12 +144,11 @@ def _write_obj(path, v, f):
 
 def cmd_pose(a) -> int:
     import numpy as np
+    from .common import set_threads
     from .pose import pose_config, run_pose
     _apply_data(a)
-    if a.threads:
-        import torch
-        torch.set_num_threads(a.threads)
     cfg = pose_config(_instance_config(a), **_given(a, POSE_OPTIONS))
+    set_threads(cfg["backend"], a.threads)
     results = []
     for s in range(a.seed, a.seed + a.runs):
         r = run_pose(cfg, seed=s)
