@@ -507,6 +507,14 @@ def distance_parts(fc, T, f, px, py, track):
     return d, inside, (i0, i1, tt, ux, uy, act)
 
 
+def live_pairs(x, x_eps, x_cut):
+    """The pairs whose generator term is not culled (x >= x_eps, x > x_cut), or None: all are."""
+    keep = x >= x_eps if x_eps > -math.inf else None
+    if x_cut is not None:
+        keep = (x > x_cut) if keep is None else keep & (x > x_cut)
+    return keep
+
+
 def generator_terms(dist, tcn, ops, x, x_eps, x_cut=None):
     """(g, sat): generator value (0 where saturated or culled) and saturation flag of argument x.
     Pairs with x < x_eps = F⁻¹(eps) (coverage < eps) are culled: a test on x, so that F itself is
@@ -515,9 +523,7 @@ def generator_terms(dist, tcn, ops, x, x_eps, x_cut=None):
     sums p itself (TConorm.pair_term), culled alike, and never saturates."""
     if tcn.kind == MEAN:
         g = tcn.pair_term(ops, dist.cdf(ops, x))
-        keep = x >= x_eps if x_eps > -math.inf else None
-        if x_cut is not None:
-            keep = (x > x_cut) if keep is None else keep & (x > x_cut)
+        keep = live_pairs(x, x_eps, x_cut)
         if keep is not None:
             g = dr.select(keep, g, 0.0)
         return g, dr.zeros(dr.mask_t(x), dr.width(x))
@@ -525,10 +531,8 @@ def generator_terms(dist, tcn, ops, x, x_eps, x_cut=None):
     sat = ~(l > -math.inf)
     g = tcn.generator(ops, dr.select(sat, 0.5, p), dr.select(sat, math.log(0.5), l))
     sat = sat | ~(g < math.inf)  # overflow: saturated too (the generator's gradient there is finite)
-    if x_eps > -math.inf or x_cut is not None:
-        keep = x >= x_eps if x_eps > -math.inf else None
-        if x_cut is not None:
-            keep = (x > x_cut) if keep is None else keep & (x > x_cut)
+    keep = live_pairs(x, x_eps, x_cut)
+    if keep is not None:
         sat = sat & keep
         g = dr.select(keep & ~sat, g, 0.0)
     else:
@@ -767,39 +771,52 @@ class AlphaSum(dr.CustomOp):
         gX = dr.zeros(Float, fc.n_corners) if want_xy else None
         gY = dr.zeros(Float, fc.n_corners) if want_xy else None
 
+        def pair(d, x, kk, tt, ux, uy, dl, gt, gp, gk, *acc):
+            """One pixel's contribution: the strip's corner accumulators and the τ, p, shape sums."""
+            acc = list(acc)
+            _, gx = _local_derivative(lambda xx: generator_terms(dist, tcn, ops, xx, x_eps, x_cut)[0], x)
+            # a zero incoming gradient contributes nothing, even where ∂g/∂x overflowed (0·inf):
+            # as in Dr.Jit's reverse mode (e.g. a pixel whose sum S saturated: ∂A/∂S = 0)
+            coef = dr.select(dl != 0.0, dl * gx, 0.0)
+            if want_xy:
+                _, xd = _local_derivative(lambda dd: dist.argument(ops, dd, tau), d)
+                cd = coef * xd
+                c0, c1 = cd * (1.0 - tt), cd * tt
+                for k in range(K):
+                    wk = dr.select(kk == k, c0, dr.select(kk == (k - 1) % K, c1, 0.0))
+                    acc[2 * k] = acc[2 * k] + wk * ux
+                    acc[2 * k + 1] = acc[2 * k + 1] + wk * uy
+            if want_tau:
+                _, xt = _local_derivative(lambda tt_: dist.argument(ops, d, tt_), Float(tau))
+                gt = gt + coef * xt
+            if want_p:
+                _, gpp = _local_derivative(lambda pp: generator_terms(
+                    dist, tcn.with_arrays({pname: pp}), ops, x, x_eps, x_cut)[0], Float(p_val))
+                gp = gp + dr.select(dl != 0.0, dl * gpp, 0.0)
+            if want_k:
+                _, gkk = _local_derivative(lambda kk_: generator_terms(
+                    dist.with_arrays({kname: kk_}), tcn, ops, x, x_eps, x_cut)[0], Float(k_val))
+                gk = gk + dr.select(dl != 0.0, dl * gkk, 0.0)
+            return (gt, gp, gk, *acc)
+
         def body(w, bits, gt, gp, gk):
             f, w, bits = pix.next_face(w, bits)
             edges = _edge_setup(fc, T, f, pix.px)
-            acc = [[Float(0.0), Float(0.0)] for _ in range(K)]  # (x, y) per corner, over the strip
+            acc = [Float(0.0) for _ in range(2 * K)]  # (x, y) per corner, over the strip
             for r in range(R):
                 d, (kk, tt, ux, uy) = _strip_pixel(T, edges, pix.py[r], True)
                 x = dist.argument(ops, d, tau)
-                _, gx = _local_derivative(lambda xx: generator_terms(dist, tcn, ops, xx, x_eps, x_cut)[0], x)
-                # a zero incoming gradient contributes nothing, even where ∂g/∂x overflowed (0·inf):
-                # as in Dr.Jit's reverse mode (e.g. a pixel whose sum S saturated: ∂A/∂S = 0)
-                coef = dr.select(delta[r] != 0.0, delta[r] * gx, 0.0)
-                if want_xy:
-                    _, xd = _local_derivative(lambda dd: dist.argument(ops, dd, tau), d)
-                    cd = coef * xd
-                    c0, c1 = cd * (1.0 - tt), cd * tt
-                    for k in range(K):
-                        wk = dr.select(kk == k, c0, dr.select(kk == (k - 1) % K, c1, 0.0))
-                        acc[k][0] += wk * ux
-                        acc[k][1] += wk * uy
-                if want_tau:
-                    _, xt = _local_derivative(lambda tt_: dist.argument(ops, d, tt_), Float(tau))
-                    gt = gt + coef * xt
-                if want_p:
-                    _, gpp = _local_derivative(lambda pp: generator_terms(
-                        dist, tcn.with_arrays({pname: pp}), ops, x, x_eps, x_cut)[0], Float(p_val))
-                    gp = gp + dr.select(delta[r] != 0.0, delta[r] * gpp, 0.0)
-                if want_k:
-                    _, gkk = _local_derivative(lambda kk_: generator_terms(
-                        dist.with_arrays({kname: kk_}), tcn, ops, x, x_eps, x_cut)[0], Float(k_val))
-                    gk = gk + dr.select(delta[r] != 0.0, delta[r] * gkk, 0.0)
+                live = live_pairs(x, x_eps, x_cut)
+                args = (d, x, kk, tt, ux, uy, delta[r], gt, gp, gk, *acc)
+                if live is None:
+                    gt, gp, gk, *acc = pair(*args)
+                else:
+                    # a branch, skipped by packets without a live pair: pairs beyond the radius, or of
+                    # pixels without incoming gradient, would add exact zeros
+                    gt, gp, gk, *acc = dr.if_stmt(args, live & (delta[r] != 0.0), pair, lambda *a: a[7:])
             if want_xy:
                 for k in range(K):
-                    for g, v in ((gX, acc[k][0]), (gY, acc[k][1])):
+                    for g, v in ((gX, acc[2 * k]), (gY, acc[2 * k + 1])):
                         dr.scatter_reduce(dr.ReduceOp.Add, g, v, f * K + k, v != 0.0, mode=BWD_MODE)
             return w, bits, gt, gp, gk
 
