@@ -137,3 +137,29 @@ def test_set_threads_gives_the_threads_to_the_rendering_backend():
             set_threads("torch", 0)
     finally:
         dr.set_thread_count(n_dr)
+
+
+def test_frozen_default_changes_no_number():
+    """Dr.Jit renders of the experiments are frozen by default (make_renderer): the shape run's losses
+    and metrics equal those of unfrozen renders bit for bit (one thread: deterministic sums), and the
+    replays really happened (recorded once, forward and backward)."""
+    dr = pytest.importorskip("drjit")
+    from gendr_experiments.shape import ShapeProblem
+    cfg = dict(protocol="quick", backend="drjit", steps=4, views=2, image_size=24, subdivisions=1,
+               distribution="logistic", tau=0.02)
+    runs = []
+    n_dr = dr.thread_count()
+    dr.set_thread_count(1)
+    try:
+        for options in (None, {"freeze": False}):
+            prob = ShapeProblem(cfg, backend_options=options)
+            losses = [prob.step(i) for i in range(4)]
+            runs.append((losses, prob.hard_iou_loss()[1], prob.model.displace.detach().clone()))
+            if options is None:
+                assert prob.renderer.backend.frozen.n_recordings == 2
+            else:
+                assert prob.renderer.backend.frozen is None
+    finally:
+        dr.set_thread_count(n_dr)
+    assert runs[0][0] == runs[1][0] and runs[0][1] == runs[1][1]
+    assert torch.equal(runs[0][2], runs[1][2])

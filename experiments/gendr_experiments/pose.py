@@ -200,7 +200,8 @@ class PoseProblem(_PoseBase):
     and ``benchmarks/bench_step.py`` times).
 
     The config is :func:`pose_config` of ``config`` and ``overrides``. ``backend_options`` go to the
-    renderer's backend (e.g. ``{"freeze": True}`` for ``backend="drjit"``); they are run-time
+    renderer's backend (e.g. ``{"freeze": False}``: Dr.Jit renders are frozen by default,
+    :func:`~gendr_experiments.common.make_renderer`); they are run-time
     options, not part of the config (so results' config hashes do not change).
     """
 

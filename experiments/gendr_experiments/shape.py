@@ -160,8 +160,8 @@ class ShapeProblem:
     ``benchmarks/bench_step.py`` times).
 
     The config is :func:`shape_config` of ``config`` and ``overrides`` (a preset, ``protocol``, under
-    them). ``backend_options`` go to the renderer's backend (e.g. ``{"freeze": True}`` for
-    ``backend="drjit"``); they are run-time options, not part of the config (so results' config
+    them). ``backend_options`` go to the renderer's backend (e.g. ``{"freeze": False}``: Dr.Jit
+    renders are frozen by default, :func:`~gendr_experiments.common.make_renderer`); they are run-time options, not part of the config (so results' config
     hashes do not change).
     """
 
