@@ -30,6 +30,10 @@ shape)
     $GENDR experiment sweep "${COMMON[@]}" --dists all --tconorms "$FIVE" "${RUN[@]}"
     # SoftRas' "average" (not a T-conorm, outside the 1,242) beside them, as the paper's heatmaps have it
     $GENDR experiment sweep "${COMMON[@]}" --dists all --tconorms average "${RUN[@]}"
+    # the T-conorms the paper calls poor (Y4, A2, A4, D2, D4, SS-2, SS-4), so that finding is testable early
+    $GENDR experiment sweep "${COMMON[@]}" --dists all \
+        --tconorms "yager(4),aczel_alsina(2),aczel_alsina(4),dombi(2),dombi(4),schweizer_sklar(-2),schweizer_sklar(-4)" \
+        "${RUN[@]}"
     $GENDR experiment sweep "${COMMON[@]}" --instances all "${RUN[@]}"
     ;;
 pose)
