@@ -140,9 +140,9 @@ def test_set_threads_gives_the_threads_to_the_rendering_backend():
 
 
 def test_frozen_default_changes_no_number():
-    """Dr.Jit renders of the experiments are frozen by default (make_renderer): the shape run's losses
-    and metrics equal those of unfrozen renders bit for bit (one thread: deterministic sums), and the
-    replays really happened (recorded once, forward and backward)."""
+    """Dr.Jit renders of the experiments are frozen by default (make_renderer, and the shape step's
+    hard renderer): the shape run's losses and metrics equal those of unfrozen renders bit for bit
+    (one thread: deterministic sums), and the replays really happened (each recorded once)."""
     dr = pytest.importorskip("drjit")
     from gendr_experiments.shape import ShapeProblem
     cfg = dict(protocol="quick", backend="drjit", steps=4, views=2, image_size=24, subdivisions=1,
@@ -155,10 +155,11 @@ def test_frozen_default_changes_no_number():
             prob = ShapeProblem(cfg, backend_options=options)
             losses = [prob.step(i) for i in range(4)]
             runs.append((losses, prob.hard_iou_loss()[1], prob.model.displace.detach().clone()))
-            if options is None:
+            if options is None:  # the soft render (forward, backward) and the hard one, each recorded once
                 assert prob.renderer.backend.frozen.n_recordings == 2
+                assert prob._hard.backend.frozen.n_recordings == 1
             else:
-                assert prob.renderer.backend.frozen is None
+                assert prob.renderer.backend.frozen is None and prob._hard.backend.frozen is None
     finally:
         dr.set_thread_count(n_dr)
     assert runs[0][0] == runs[1][0] and runs[0][1] == runs[1][1]

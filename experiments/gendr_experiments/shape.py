@@ -140,8 +140,17 @@ def shape_target_views(cfg: dict, *, silhouettes: bool = True):
     return cam, hard_silhouettes(tv, tf, cam, size, cfg["backend"]), (size, size)
 
 
-def hard_silhouettes(vertices, faces, camera, image_size, backend="torch") -> torch.Tensor:
-    r = gendr.Renderer("heaviside", "or", tau=1.0, image_size=image_size, backend=backend, eps=0.0, blend=None)
+def hard_renderer(image_size, backend="torch", freeze=True) -> gendr.Renderer:
+    """The exact silhouette renderer (heaviside + or); Dr.Jit renders frozen unless ``freeze=False``
+    (make_renderer's rule: the shape step renders it every step, and a replay skips the tracing)."""
+    opts = {"freeze": freeze} if backend == "drjit" else {}
+    return gendr.Renderer("heaviside", "or", tau=1.0, image_size=image_size, backend=backend, eps=0.0, blend=None,
+                          **opts)
+
+
+def hard_silhouettes(vertices, faces, camera, image_size, backend="torch", renderer=None) -> torch.Tensor:
+    """[B, H, W] exact silhouettes; ``renderer``: a :func:`hard_renderer` to reuse (default: a new one)."""
+    r = renderer if renderer is not None else hard_renderer(image_size, backend)
     with torch.no_grad():
         return r.render(vertices, faces, camera)[..., 3]
 
@@ -173,8 +182,9 @@ class ShapeProblem:
 
         dist, tcn, self.label = instance_from_config(cfg)
         self.tau = renderer_tau(cfg["tau"], dist.squared)
+        self.backend_options = dict(backend_options or {})
         self.renderer = make_renderer(dist, tcn, self.tau, size, backend=cfg["backend"], eps=float(cfg["eps"]),
-                                      cutoff=cfg["cutoff"], **(backend_options or {}))
+                                      cutoff=cfg["cutoff"], **self.backend_options)
         self.model = model = SphereDeformer(shape_template(cfg))
         self.L = mesh_laplacian(model.base.shape[0], model.faces_np)
         self.fedges = flatten_edges(model.faces_np)
@@ -183,6 +193,7 @@ class ShapeProblem:
             raise ParameterError(f"shape metric {cfg['metric']!r} must be 'final' or 'best'")
         #: hard IoU loss of the mesh each step rendered (only with ``metric="best"``)
         self.hard_losses: list[float] = []
+        self._hard = None  # the hard renderer, made on first use
 
     def hard_iou_loss(self, vertices=None) -> tuple[torch.Tensor, float]:
         """``(vertices, hard IoU loss)`` of ``vertices`` (default: the current mesh); heaviside + or,
@@ -190,7 +201,9 @@ class ShapeProblem:
         if vertices is None:
             with torch.no_grad():
                 vertices = self.model()
-        sil = hard_silhouettes(vertices, self.model.faces, self.camera, self.size, self.cfg["backend"])
+        if self._hard is None:
+            self._hard = hard_renderer(self.size, self.cfg["backend"], self.backend_options.get("freeze", True))
+        sil = hard_silhouettes(vertices, self.model.faces, self.camera, self.size, renderer=self._hard)
         return vertices, float(iou_loss_per_view(sil, self.target_sil).mean())
 
     def step(self, step_index: int, callback=None) -> float:
