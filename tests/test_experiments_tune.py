@@ -141,3 +141,24 @@ def test_tune_takes_candidates_outside_the_grid(tmp_path):
                taus=(0.1,), fine_steps=(0.25,), instances=[271, avg])
     got = {b["label"]: b["instance"] for b in res.ranking}
     assert got == {"logistic|probabilistic": 271, "logistic|average": None}
+
+
+def test_calibration_from_one_work_level_scales_with_the_pairs():
+    """Probe runs of one work level cannot split fixed from per-pair cost: a run with 100x the pairs
+    (a heavy tail after a light-tailed probe) must be predicted at least 100x the probe's time, not
+    the probe's time (which let tune start a 93 s run 50 s before its deadline); lighter runs not
+    below the probe; with two work levels the fitted line applies."""
+    from gendr_experiments import tune as T
+    feats = {"a": {"dist_family": "logistic", "tconorm_family": "probabilistic", "gpairs": 0.01},
+             "b": {"dist_family": "logistic", "tconorm_family": "probabilistic", "gpairs": 1.0},
+             "c": {"dist_family": "logistic", "tconorm_family": "probabilistic", "gpairs": 0.001}}
+    rows = [{"key": "k1", "status": "ok", "seconds": 2.0, "config": "a"},
+            {"key": "k2", "status": "ok", "seconds": 2.2, "config": "a"}]
+    cal = T._Calibration()
+    cal.fit(rows, feats.get)
+    assert cal.predict(feats["a"]) == pytest.approx(2.1)
+    assert cal.predict(feats["b"]) == pytest.approx(210.0)
+    assert cal.predict(feats["c"]) == pytest.approx(2.1)
+    cal.fit(rows + [{"key": "k3", "status": "ok", "seconds": 12.0, "config": "b"}], feats.get)
+    assert cal.w0 is None and cal.b > 0
+    assert cal.predict(feats["b"]) == pytest.approx(cal.a + cal.b * T._work(feats["b"]))

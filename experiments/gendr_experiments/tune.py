@@ -110,10 +110,15 @@ class TuneResult:
 
 
 class _Calibration:
-    """``seconds = a + b·k·gpairs`` fitted (non-negative least squares) to the finished rows."""
+    """``seconds = a + b·k·gpairs`` fitted (non-negative least squares) to the finished rows. From
+    runs of one work level w₀ alone (the probe of a light-tailed candidate) the split between fixed
+    and per-pair cost is unknown: then ``seconds = y·max(1, w/w₀)``, never below the measured y and
+    proportional beyond it, so a heavy-tailed run (100× the pairs) is not predicted to cost what
+    the probe did and started just before the deadline."""
 
     def __init__(self):
         self.a, self.b = None, None
+        self.w0 = None  # the single work level, when that is all there is
 
     def fit(self, rows, feats, warm=()):
         """Fit to ``rows`` except those in ``warm`` (keys of a process's first run: imports, kernel
@@ -126,14 +131,17 @@ class _Calibration:
             return
         X = np.array([[1.0, _work(f)] for f, _ in pts])
         y = np.array([s for _, s in pts])
-        if len({round(x[1], 12) for x in X}) < 2:  # one work level: all of it fixed cost
-            self.a, self.b = float(y.mean()), 0.0
+        if len({round(x[1], 12) for x in X}) < 2:  # one work level (see the class docstring)
+            self.a, self.b, self.w0 = float(y.mean()), 0.0, float(X[0, 1])
             return
         (a, b), _ = nnls(X, y)
-        self.a, self.b = float(a), float(b)
+        self.a, self.b, self.w0 = float(a), float(b), None
 
     def predict(self, f) -> float:
-        return self.a + self.b * _work(f)
+        w = _work(f)
+        if self.w0 is not None:
+            return self.a * max(1.0, w / self.w0) if self.w0 > 0 else self.a
+        return self.a + self.b * w
 
 
 def _work(f):
@@ -253,8 +261,9 @@ def tune(target: str, *, budget: float, store="tune.jsonl", protocol: str = "qui
         overhead = max(0.0, sum(r["seconds"] - cal.predict(feats(r["config"])) for r in probe if r["key"] in warm))
     if cal.a is None:
         raise ParameterError(f"tune: no run finished within budget={budget!r} s; raise --budget")
-    say(f"cost: ~{cal.predict(feats(coarse[cands[0]][0])):.2f} s per run (a={cal.a:.2f} s, b={cal.b:.3g} s per "
-        f"billion pairs)")
+    model = ("one work level: proportional to the pairs beyond it" if cal.w0 is not None else
+             f"a={cal.a:.2f} s, b={cal.b:.3g} s per billion pairs")
+    say(f"cost: ~{cal.predict(feats(coarse[cands[0]][0])):.2f} s per run ({model})")
     # rounds until the budget or the candidates run out:
     # 2. the coarse grid for as many further candidates as fit in COARSE_SHARE of what is left;
     # 3. the fine τ grid for the best coarse instances not refined yet (the top ``refine_share`` of the
