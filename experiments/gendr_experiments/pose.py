@@ -201,8 +201,8 @@ class PoseProblem(_PoseBase):
 
     The config is :func:`pose_config` of ``config`` and ``overrides``. ``backend_options`` go to the
     renderer's backend (e.g. ``{"freeze": False}``: Dr.Jit renders are frozen by default,
-    :func:`~gendr_experiments.common.make_renderer`); they are run-time
-    options, not part of the config (so results' config hashes do not change).
+    :func:`~gendr_experiments.common.make_renderer`); they are run-time options, not part of the
+    config (so results' config hashes do not change).
     """
 
     def __init__(self, config: dict | None = None, *, backend_options: dict | None = None, **overrides):

@@ -170,8 +170,8 @@ class ShapeProblem:
 
     The config is :func:`shape_config` of ``config`` and ``overrides`` (a preset, ``protocol``, under
     them). ``backend_options`` go to the renderer's backend (e.g. ``{"freeze": False}``: Dr.Jit
-    renders are frozen by default, :func:`~gendr_experiments.common.make_renderer`); they are run-time options, not part of the config (so results' config
-    hashes do not change).
+    renders are frozen by default, :func:`~gendr_experiments.common.make_renderer`); they are
+    run-time options, not part of the config (so results' config hashes do not change).
     """
 
     def __init__(self, config: dict | None = None, *, backend_options: dict | None = None, **overrides):
