@@ -56,8 +56,8 @@ CASES = {
                                  tau=0.01, eps=1e-4)),
     "pose": (PoseProblem, dict(target="teapot_like", image_size=64, tau_start=1e-3, tau_end=1e-3)),
 }
-BACKENDS = {"torch": ("torch", {}), "torch-compiled": ("torch", {"compile": True}), "drjit": ("drjit", {"freeze": False}),
-            "drjit-frozen": ("drjit", {"freeze": True})}
+BACKENDS = {"torch": ("torch", {}), "torch-compiled": ("torch", {"compile": True}),
+            "drjit": ("drjit", {"freeze": False}), "drjit-frozen": ("drjit", {"freeze": True})}
 DISTS = ("logistic", "cauchy")
 REPEATS = {"logistic": 10, "cauchy": 3}  # cauchy steps take seconds
 

@@ -19,8 +19,8 @@ import torch
 import gendr
 from gendr.errors import InputValueError, ParameterError
 
-__all__ = ["instance_from_config", "grid_instance", "make_renderer", "renderer_tau", "load_target_mesh",
-           "soft_iou_loss", "iou_loss_per_view", "mesh_laplacian", "laplacian_loss", "flatten_edges",
+__all__ = ["instance_from_config", "grid_instance", "make_renderer", "hard_renderer", "renderer_tau",
+           "load_target_mesh", "soft_iou_loss", "iou_loss_per_view", "mesh_laplacian", "laplacian_loss", "flatten_edges",
            "flatten_loss", "rotation_angle_deg", "axis_angle_to_matrix", "config_hash", "versions",
            "log_tau_schedule", "PAPER_DATA_ENV", "paper_data_dir", "resolve_data_path", "load_template",
            "source_hash", "provenance", "file_digest", "data_digests", "preset_config", "set_threads"]
@@ -88,6 +88,14 @@ def make_renderer(dist, tcn, tau, image_size, *, backend="torch", eps=1e-4, cuto
         backend_options.setdefault("freeze", True)
     return gendr.Renderer(dist, tcn, tau=tau, image_size=image_size, backend=backend, eps=eps, blend=None,
                           cutoff=cutoff, **backend_options)
+
+
+def hard_renderer(image_size, backend="torch", *, freeze=False):
+    """The exact silhouette renderer (heaviside + or, alpha in channel 3). ``freeze`` (Dr.Jit only):
+    replay its renders, for a renderer used every step (the shape step's hard IoU); a one-off
+    render (a reference silhouette) would only pay for the recording."""
+    return make_renderer("heaviside", "or", 1.0, image_size, backend=backend, eps=0.0,
+                         **({"freeze": freeze} if backend == "drjit" else {}))
 
 
 # ------------------------------------------------------------------------------------------------

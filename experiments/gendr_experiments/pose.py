@@ -49,7 +49,7 @@ import gendr
 
 from gendr.errors import ParameterError
 
-from .common import (axis_angle_to_matrix, data_digests, instance_from_config, iou_loss_per_view,
+from .common import (axis_angle_to_matrix, data_digests, hard_renderer, instance_from_config, iou_loss_per_view,
                      load_target_mesh, log_tau_schedule, make_renderer, preset_config, random_rotation,
                      rotation_about, rotation_angle_deg)
 
@@ -134,10 +134,6 @@ def _render(renderer, verts, faces, R, distance, fov):
     return renderer.render(v, faces, cam)[..., 3]
 
 
-def _hard_renderer(cfg: dict, size: int):
-    return gendr.Renderer("heaviside", "or", tau=1.0, image_size=size, backend=cfg["backend"], eps=0.0, blend=None)
-
-
 class _PoseBase:
     """What both parametrisations share: the config, the mesh, a renderer per τ of the schedule
     (one backend object for all), the loss, the step with its finiteness checks."""
@@ -209,7 +205,7 @@ class PoseProblem(_PoseBase):
         super().__init__(config, backend_options, overrides)
         self.poses = poses = pose_problem(self.cfg)
         with torch.no_grad():
-            self.ref = _render(_hard_renderer(self.cfg, self.size), self.verts, self.faces,
+            self.ref = _render(hard_renderer(self.size, self.cfg["backend"]), self.verts, self.faces,
                                torch.tensor(poses["R_true"], dtype=torch.float32), poses["d_true"], poses["fov"])
         self.R0 = torch.tensor(poses["R0"], dtype=torch.float32)
         self.omega = torch.zeros(3, requires_grad=True)
@@ -285,7 +281,8 @@ class LookAtPoseProblem(_PoseBase):
         self.verts_b = torch.einsum("nij,vj->nvi", R, self.verts)
         gt_fov = torch.full((len(pr["d0"]),), 2.0 * float(cfg["gt_view_angle"]))
         with torch.no_grad():
-            self.ref = self._render(_hard_renderer(cfg, self.size), torch.tensor(pr["d_true"], dtype=torch.float32),
+            self.ref = self._render(hard_renderer(self.size, cfg["backend"]),
+                                    torch.tensor(pr["d_true"], dtype=torch.float32),
                                     torch.zeros(len(gt_fov)), torch.zeros(len(gt_fov)), gt_fov)
         init = np.stack([pr["d0"], pr["el0"], pr["az0"], pr["view_angle0"]], 1)
         self.pose = torch.tensor(init, dtype=torch.float32, requires_grad=True)   # [n, 4]

@@ -34,7 +34,7 @@ import gendr
 from gendr.errors import ParameterError
 
 from .targets import is_images_target, load_image_target
-from .common import (data_digests, flatten_edges, flatten_loss, instance_from_config, laplacian_loss,
+from .common import (data_digests, flatten_edges, flatten_loss, hard_renderer, instance_from_config, laplacian_loss,
                      load_target_mesh, load_template, make_renderer, mesh_laplacian, preset_config, renderer_tau,
                      soft_iou_loss, iou_loss_per_view)
 
@@ -140,14 +140,6 @@ def shape_target_views(cfg: dict, *, silhouettes: bool = True):
     return cam, hard_silhouettes(tv, tf, cam, size, cfg["backend"]), (size, size)
 
 
-def hard_renderer(image_size, backend="torch", freeze=True) -> gendr.Renderer:
-    """The exact silhouette renderer (heaviside + or); Dr.Jit renders frozen unless ``freeze=False``
-    (make_renderer's rule: the shape step renders it every step, and a replay skips the tracing)."""
-    opts = {"freeze": freeze} if backend == "drjit" else {}
-    return gendr.Renderer("heaviside", "or", tau=1.0, image_size=image_size, backend=backend, eps=0.0, blend=None,
-                          **opts)
-
-
 def hard_silhouettes(vertices, faces, camera, image_size, backend="torch", renderer=None) -> torch.Tensor:
     """[B, H, W] exact silhouettes; ``renderer``: a :func:`hard_renderer` to reuse (default: a new one)."""
     r = renderer if renderer is not None else hard_renderer(image_size, backend)
@@ -202,7 +194,7 @@ class ShapeProblem:
             with torch.no_grad():
                 vertices = self.model()
         if self._hard is None:
-            self._hard = hard_renderer(self.size, self.cfg["backend"], self.backend_options.get("freeze", True))
+            self._hard = hard_renderer(self.size, self.cfg["backend"], freeze=self.backend_options.get("freeze", True))
         sil = hard_silhouettes(vertices, self.model.faces, self.camera, self.size, renderer=self._hard)
         return vertices, float(iou_loss_per_view(sil, self.target_sil).mean())
 
