@@ -34,7 +34,7 @@ def generator_chain(dist, tcn, eps, K):
     x_min = culling_argument(dist, eps)  # a constant of the compiled code
 
     def forward(geom, face, xnum, cnum, H, py, tau, x_cut):
-        d = signed_distance(geom.index_select(0, face), K, Block.screen_x(xnum, cnum, H), py)
+        d = signed_distance(geom.index_select(1, face), K, Block.screen_x(xnum, cnum, H), py)
         return generator_unsaturated(dist, tcn, dist.argument(ops, d, tau), x_min, x_cut)
     return forward
 
@@ -45,7 +45,7 @@ def gradient_chain(dist, tcn, eps, K):
     x_min = culling_argument(dist, eps)
 
     def backward(geom, face, xnum, cnum, H, py, tau, x_cut, w):
-        d, k, t, ux, uy = signed_distance(geom.index_select(0, face), K, Block.screen_x(xnum, cnum, H), py, track=True)
+        d, k, t, ux, uy = signed_distance(geom.index_select(1, face), K, Block.screen_x(xnum, cnum, H), py, track=True)
         # torch.func.jvp only over the pair terms, of x alone: a tensor it did not make (τ, a mask)
         # combined inside it makes the compiled code specialise to one block size (torch 2.13)
         x = dist.argument(ops, d, tau)
@@ -55,7 +55,7 @@ def gradient_chain(dist, tcn, eps, K):
         keep = keep_mask(x, x_min, x_cut)  # (outside the jvp, as any tensor it did not make)
         if keep is not None:
             wg = wg * keep
-        return edge_sums(wg * x_d, k, t, ux, uy, K), (wg * x_tau).sum()
+        return edge_sums(wg * x_d, k, t, ux, uy, K, py.shape), (wg * x_tau).sum()
     return backward
 
 
@@ -86,7 +86,7 @@ class FusedChains:
             return None
 
     def forward(self, geom, blk, tau, x_cut):
-        """Generator terms g [R, width] of raster.Block ``blk``, or None: run it eagerly (also when
+        """Generator terms g (shaped as the block's arrays) of raster.Block ``blk``, or None: run it eagerly (also when
         a pair saturated: the eager path's masks handle that, in the backward too)."""
         out = self._call(0, geom, blk.face, blk.xnum, blk.cnum, blk.H, blk.py, tau, x_cut)
         if out is None or not bool(torch.isfinite(out[1])):
@@ -95,7 +95,7 @@ class FusedChains:
         return out[0]
 
     def backward(self, geom, blk, tau, x_cut, w):
-        """(corner sums [K, 4, R], ∂L/∂τ) of ``blk`` given ∂L/∂S per pair ``w`` [R, width], or None:
+        """(corner sums [K, 4, R], ∂L/∂τ) of ``blk`` given ∂L/∂S per pair ``w`` (the block's shape), or None:
         run it eagerly (so do the blocks whose forward did)."""
         if id(blk) not in self._unsaturated:
             return None

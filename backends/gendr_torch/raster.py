@@ -2,8 +2,8 @@
 
 Never materialises B·H·W·F. Per face we build a screen-space bounding box grown by the culling
 distance of the distribution (coverage < eps beyond it) and enumerate the rows of each box. Rows
-are evaluated as [rows, width] blocks of at most ``max_pairs`` pairs (memory O(pixels + faces +
-max_pairs)), per-face and per-row data broadcasting along the row. Alpha is one autograd Function
+are evaluated as [rows, width] blocks (narrow ones transposed, see Block) of at most ``max_pairs``
+pairs (memory O(pixels + faces + max_pairs)), per-face and per-row data broadcasting along the row. Alpha is one autograd Function
 (:class:`SoftAlpha`): its backward recomputes each block and applies the analytic derivative of the
 distance, with the coverage/generator derivative from local autograd on the spec formulas, so
 nothing per pair is stored. Max-type aggregates and the RGB blends work on bands of image rows
@@ -162,8 +162,9 @@ def prepare_faces(settings, camera, verts, faces, colors, per_face, texture=None
 
 
 def edge_table(X, Y):
-    """Per-edge data of polygons with corners (X, Y) [N, K]: [N, 8K], columns (edge k, field) with
-    fields Px, Py, Ex, Ey, 1/|E|², nx, ny, c (inward unit normal n, offset c, see signed_distance)."""
+    """Per-edge data of polygons with corners (X, Y) [N, K]: [8K, N], rows (edge k, field) with
+    fields Px, Py, Ex, Ey, 1/|E|², nx, ny, c (inward unit normal n, offset c, see signed_distance).
+    Field-major, so that a block's gather (index_select along dim 1) gives contiguous [1, R] rows."""
     N, K = X.shape
     Ex, Ey = X.roll(-1, 1) - X, Y.roll(-1, 1) - Y
     len2 = Ex * Ex + Ey * Ey
@@ -178,7 +179,7 @@ def edge_table(X, Y):
     big = torch.finfo(X.dtype).max / 4
     c = torch.where(nonzero, torch.zeros_like(len2), torch.full_like(len2, big))
     c = torch.where((orient == 0)[:, None], torch.full_like(c, -1.0), c)
-    return torch.stack([X, Y, Ex, Ey, inv_len2, nx, ny, c], -1).reshape(N, 8 * K)
+    return torch.stack([t.t() for t in (X, Y, Ex, Ey, inv_len2, nx, ny, c)], 1).reshape(8 * K, N)
 
 
 def _shading_data(settings, camera, P, H, W, verts, faces, tri, colors, per_face, B, texture=None, normals_out=False):
@@ -298,27 +299,36 @@ def _chunks(widths, max_pairs: int):
     return out
 
 
+#: blocks narrower than this many columns are evaluated transposed (see Block)
+TRANSPOSE_BELOW = 24
+
+
 @dataclass
 class Block:
-    """Face rows evaluated together as [R, width] pixels: row r covers columns j0 ... j0 + width − 1
-    (j0: its face box's first column) of image row row[r] of the face's image. Columns beyond the
-    box are farther than the culling distance (exact zeros, like the box's own corners); those
-    beyond the image land in the padding columns of a wider output (see Plan.Wc). A pixel's values
-    do not depend on the block it is evaluated in (same results for any max_pairs)."""
+    """Face rows evaluated together: row r covers columns j0 ... j0 + width − 1 (j0: its face box's
+    first column) of image row row[r] of the face's image. Columns beyond the box are farther than
+    the culling distance (exact zeros, like the box's own corners); those beyond the image land in
+    the padding columns of a wider output (see Plan.Wc).
+
+    Arrays are [R, width] with per-row data [R, 1], or, for blocks narrower than TRANSPOSE_BELOW
+    (``transposed``), [width, R] with per-row data [1, R]: torch's CPU loops broadcast a per-row
+    value along a short inner dimension several times slower than along a long one (a multiply of
+    262k pairs: 124 µs at width 8 against 39 µs transposed; equal from width ~32 on)."""
 
     face: torch.Tensor  # [R] int64, index into B·F
-    pix0: torch.Tensor  # [R, 1] int32: output index of the row's first pixel
-    xnum: torch.Tensor  # [R, 1] H × screen X of the row's first pixel (an integer)
-    py: torch.Tensor  # [R, 1] screen Y of the row
-    cnum: torch.Tensor  # [1, width] H × screen X offsets of the columns (even integers)
+    pix0: torch.Tensor  # per row (shaped as py), int32: output index of the row's first pixel
+    xnum: torch.Tensor  # per row, H × screen X of the row's first pixel (an integer)
+    py: torch.Tensor  # per row ([R, 1], or [1, R] transposed): screen Y of the row
+    cnum: torch.Tensor  # per column ([1, width], or [width, 1]): H × screen X offsets (even integers)
     H: int
+    transposed: bool = False
 
     @property
     def width(self):
-        return self.cnum.shape[1]
+        return self.cnum.numel()
 
     def px(self):
-        """Screen X [R, width], rounded exactly as (2j + 1 − W)/H."""
+        """Screen X of the block's pixels, rounded exactly as (2j + 1 − W)/H."""
         return self.screen_x(self.xnum, self.cnum, self.H)
 
     @staticmethod
@@ -326,13 +336,27 @@ class Block:
         return (xnum + cnum) / H
 
     def pix(self):
-        return self.pix0 + torch.arange(self.width, dtype=torch.int32, device=self.pix0.device)
+        """Output pixel indices of the block's pixels (int32)."""
+        return self.pix0 + torch.arange(self.width, dtype=torch.int32, device=self.pix0.device).view(self.cnum.shape)
+
+    def by_rows(self, a):
+        """A block array flattened row by row, [R·width] (the order of :meth:`flat`)."""
+        if not self.transposed or a.numel() == 0:
+            return a.reshape(-1)
+        return torch.stack(a.unbind(0), 1).view(-1)  # (~2x faster than a.t().reshape(-1) here)
+
+    def pix_by_rows(self):
+        if not self.transposed:
+            return self.pix().reshape(-1)
+        return (self.pix0.view(-1, 1) + torch.arange(self.width, dtype=torch.int32, device=self.pix0.device)).view(-1)
 
     def flat(self):
-        """Per-pair (face, pix, px, py), [R·width] each."""
+        """Per-pair (face, pix, px, py), [R·width] each, row by row. Sums over pairs (index_add) run
+        in this order, so that a pixel's sum adds its faces in the order of the rows, whatever the
+        chunking (results do not depend on max_pairs)."""
         shape = (self.face.numel(), self.width)
-        return (self.face[:, None].expand(shape).reshape(-1), self.pix().reshape(-1),
-                self.px().reshape(-1), self.py.expand(shape).reshape(-1))
+        return (self.face[:, None].expand(shape).reshape(-1), self.pix_by_rows(),
+                self.by_rows(self.px()), self.py.view(-1, 1).expand(shape).reshape(-1))
 
 
 @dataclass
@@ -362,11 +386,13 @@ class Plan:
         width = int(self.rwidth.index_select(0, sel).max())
         col0 = self.j0.long().index_select(0, face)
         dtype, device = self.fc.X.dtype, face.device
-        pix0 = (((face // self.fc.F) * nrows + row - r0) * self.Wc + col0).int()[:, None]
-        xnum = (2 * col0 + 1 - W).to(dtype)[:, None]
-        py = (1 - (2 * row + 1).to(dtype) / H)[:, None]
-        cnum = torch.arange(0, 2 * width, 2, dtype=dtype, device=device)[None]
-        return Block(face, pix0, xnum, py, cnum, H)
+        transposed = width < TRANSPOSE_BELOW
+        per_row, per_col = ((1, -1), (-1, 1)) if transposed else ((-1, 1), (1, -1))
+        pix0 = (((face // self.fc.F) * nrows + row - r0) * self.Wc + col0).int().view(per_row)
+        xnum = (2 * col0 + 1 - W).to(dtype).view(per_row)
+        py = (1 - (2 * row + 1).to(dtype) / H).view(per_row)
+        cnum = torch.arange(0, 2 * width, 2, dtype=dtype, device=device).view(per_col)
+        return Block(face, pix0, xnum, py, cnum, H, transposed)
 
     def chunks(self):
         """Blocks covering every row, in any order (for sums): rows of similar width together."""
@@ -406,8 +432,8 @@ def _below(a, b):
 
 def signed_distance(g, K, px, py, track=False):
     """Signed distance (inside > 0, outside < 0) of a block's pixel centres to their face
-    polygons, [R, width] (g: the faces' edge_table rows, [R, 8K]; px: screen X [R, width], py:
-    screen Y [R, 1], see Block).
+    polygons, shaped as px (g: the block's faces' columns of edge_table, [8K, R]; px: screen X
+    of the pixels, py: screen Y per row, [R, 1] or [1, R]: see Block).
 
     With ``track``, also returns what the analytic backward needs: the nearest edge k (as a float),
     the position t in [0, 1] of the nearest boundary point on it, and the unit vector (ux, uy) with
@@ -415,7 +441,7 @@ def signed_distance(g, K, px, py, track=False):
     """
     d2 = emin = None
     for k in range(K):
-        Px, Py, Ex, Ey, il, nx, ny, c = g[:, 8 * k: 8 * k + 8, None].unbind(1)  # [R, 1] each
+        Px, Py, Ex, Ey, il, nx, ny, c = g[8 * k: 8 * k + 8].view(8, *py.shape).unbind(0)  # per row, as py
         # rounded as the textbook formulas (and Dr.Jit) do: no fused multiply-adds (addcmul is
         # one), since ties between edges at kinks must break alike; the terms in py are per row
         dx, dy = px - Px, py - Py
@@ -502,17 +528,18 @@ def _generator_terms(dist, tcn, x, eps, x_cut=None):
     return torch.where(sat, 0.0, g), sat
 
 
-def edge_sums(gd, k, t, ux, uy, K):
-    """∂L/∂d per pair [R, width] -> per edge e and row the sums over the row's pairs whose nearest
-    edge is e of the corner parts (corner e: x, y; corner e + 1: x, y), [K, 4, R]; with
-    ∂d/∂P_e = (1 − t)·u and ∂d/∂P_{e+1} = t·u (see signed_distance)."""
+def edge_sums(gd, k, t, ux, uy, K, row_shape):
+    """∂L/∂d per pair (a Block's array) -> per edge e and row the sums over the row's pairs whose
+    nearest edge is e of the corner parts (corner e: x, y; corner e + 1: x, y), [K, 4, R]; with
+    ∂d/∂P_e = (1 − t)·u and ∂d/∂P_{e+1} = t·u (see signed_distance). ``row_shape``: the shape of
+    the block's per-row data ([R, 1], or [1, R] transposed)."""
     gb = gd * t
     ga = gd - gb
     parts = (ga * ux, ga * uy, gb * ux, gb * uy)
     out = []
     for e in range(K):
         m = (k - e).abs_().clamp_(max=1.0).neg_().add_(1.0)  # 1.0 where k == e
-        out.append(torch.stack([(v * m).sum(1) for v in parts]))
+        out.append(torch.stack([(v * m).sum_to_size(row_shape).view(-1) for v in parts]))
     return torch.stack(out)
 
 
@@ -564,19 +591,19 @@ class SoftAlpha(torch.autograd.Function):
                 if g is not None:
                     sat = None
                 else:
-                    d = signed_distance(geom.index_select(0, blk.face), K, blk.px(), blk.py)
+                    d = signed_distance(geom.index_select(1, blk.face), K, blk.px(), blk.py)
                     g, sat = _generator_terms(dist, tcn, dist.argument(ops, d, tau), eps, x_cut)
-                pix = blk.pix().reshape(-1)
-                S.index_add_(0, pix, g.reshape(-1))
+                pix = blk.pix_by_rows()  # row by row (see Block.flat)
+                S.index_add_(0, pix, blk.by_rows(g))
                 if sat is not None:
-                    nsat.index_add_(0, pix, sat.reshape(-1).to(torch.int32))
+                    nsat.index_add_(0, pix, blk.by_rows(sat).to(torch.int32))
             acc = torch.stack([S, nsat.to(S.dtype)], 0).reshape(2, B, H, Wc)[..., :W]
             A = _from_sum(tcn, acc[0], acc[1], plan.fc.F)
         else:
             for r0, r1, blk in plan.bands():
                 if blk is None:
                     continue
-                d = signed_distance(geom.index_select(0, blk.face), K, blk.px(), blk.py)
+                d = signed_distance(geom.index_select(1, blk.face), K, blk.px(), blk.py)
                 p = _coverage_max(dist, dist.argument(ops, d, tau), eps, x_cut)
                 pix = blk.pix().reshape(-1).long()
                 Sb = X.new_zeros(B * (r1 - r0) * Wc).scatter_reduce_(0, pix, p.reshape(-1), "amax", include_self=True)
@@ -648,34 +675,37 @@ class SoftAlpha(torch.autograd.Function):
             gS = torch.nn.functional.pad(gS, (0, Wc - W)).reshape(-1)
             tau_value = tau.detach()
             for blk in plan.chunks():
-                w = gS.index_select(0, blk.pix().reshape(-1)).view(-1, blk.width)
+                pix = blk.pix()
+                w = gS.index_select(0, pix.reshape(-1)).view(pix.shape)
                 out = plan.fused.backward(geom, blk, tau_value, x_cut, w) if plan.fused else None
                 if out is not None:
                     scatter(blk, out[0])
                     if want_tau:
                         gtau = gtau + out[1]
                     continue
-                d, k, t, ux, uy = signed_distance(geom.index_select(0, blk.face), K, blk.px(), blk.py, track=True)
+                d, k, t, ux, uy = signed_distance(geom.index_select(1, blk.face), K, blk.px(), blk.py, track=True)
                 gd = local_grad(blk, d, w, lambda x: _generator_terms(dist, tcn, x, eps, x_cut)[0])
                 if gd is not None:
-                    scatter(blk, edge_sums(gd, k, t, ux, uy, K))
+                    scatter(blk, edge_sums(gd, k, t, ux, uy, K, blk.py.shape))
         else:  # max: the gradient goes to one face attaining the maximum
             A, gA = (torch.nn.functional.pad(t, (0, Wc - W)) for t in (A, gA))
             for r0, r1, blk in plan.bands():
                 if blk is None:
                     continue
+                shape = blk.pix().shape
                 pix = blk.pix().reshape(-1).long()
-                Ap = A[:, r0:r1].reshape(-1)[pix].view(-1, blk.width)
-                w = gA[:, r0:r1].reshape(-1)[pix].view(-1, blk.width)
-                d, k, t, ux, uy = signed_distance(geom.index_select(0, blk.face), K, blk.px(), blk.py, track=True)
+                Ap = A[:, r0:r1].reshape(-1)[pix].view(shape)
+                w = gA[:, r0:r1].reshape(-1)[pix].view(shape)
+                d, k, t, ux, uy = signed_distance(geom.index_select(1, blk.face), K, blk.px(), blk.py, track=True)
                 with torch.no_grad():
                     pm = _coverage_max(dist, dist.argument(ops, d, tau), eps, x_cut)
                 win = ((pm == Ap) & (pm > 0)).reshape(-1)
-                win = _lowest_face(win, blk.face[:, None].expand(-1, blk.width).reshape(-1), pix, B * (r1 - r0) * Wc)
-                w = torch.where(win.view(-1, blk.width), w, 0.0)
+                face = blk.face.view(blk.py.shape).expand(shape).reshape(-1)
+                win = _lowest_face(win, face, pix, B * (r1 - r0) * Wc)
+                w = torch.where(win.view(shape), w, 0.0)
                 gd = local_grad(blk, d, w, lambda x: _coverage_max(dist, x, eps, x_cut))
                 if gd is not None:
-                    scatter(blk, edge_sums(gd, k, t, ux, uy, K))
+                    scatter(blk, edge_sums(gd, k, t, ux, uy, K, blk.py.shape))
         gP = gP.view(*X.shape, 4)
         gX = gP[..., 0] + gP[..., 2].roll(1, 1)  # edge k − 1 ends at corner k
         gY = gP[..., 1] + gP[..., 3].roll(1, 1)
@@ -714,12 +744,12 @@ def rgb_band(plan, X, Y, shade, tau, band, tex=None):
     if blk is None:
         bg = torch.as_tensor(s.background, dtype=X.dtype, device=X.device)
         return bg.expand(fc.B, r1 - r0, W, 3)
-    d = signed_distance(edge_table(X, Y).index_select(0, blk.face), fc.K, blk.px(), blk.py)
+    d = blk.by_rows(signed_distance(edge_table(X, Y).index_select(1, blk.face), fc.K, blk.px(), blk.py))
     inside = d >= 0  # outside, d <= −sqrt(tiny)
-    x = s.distribution.argument(ops, d, tau).reshape(-1)
+    x = s.distribution.argument(ops, d, tau)
     p = _coverage_max(s.distribution, x, s.eps, s.cutoff_argument(ops, tau.detach()))  # 0 where culled
     face, pix, px, py = blk.flat()
-    rgb = _blend(s, fc, shade.index_select(1, face), pix, npix, px, py, p, inside.reshape(-1), face)
+    rgb = _blend(s, fc, shade.index_select(1, face), pix, npix, px, py, p, inside, face)
     return rgb.reshape(fc.B, r1 - r0, plan.Wc, 3)[:, :, :W]
 
 
@@ -870,7 +900,7 @@ def rasterize(settings, camera, verts, faces):
         fid = torch.full((npix,), -1, dtype=torch.long, device=device)
         vals = torch.zeros(npix, 8, dtype=dtype, device=device)  # bary (3), depth, normal (3), unused
         if blk is not None:
-            d = signed_distance(geom.index_select(0, blk.face), fc.K, blk.px(), blk.py)
+            d = blk.by_rows(signed_distance(geom.index_select(1, blk.face), fc.K, blk.px(), blk.py))
             face, pix, px, py = blk.flat()
             pix = pix.long()
             sh = fc.shade.index_select(1, face)
