@@ -424,10 +424,16 @@ class Plan:
 # per-pair evaluation of one block
 # ---------------------------------------------------------------------------------------------
 def _below(a, b):
-    """1.0 where a < b, else 0.0 (finite a, b). Arithmetic instead of a bool mask and torch.where,
-    which are ~5x slower per element on CPU; selections are then torch.lerp with weights 0 or 1
-    (exact: lerp returns start at weight 0 and end at weight 1)."""
-    return (b - a).sign_().clamp_(min=0.0)
+    """1.0 where a < b, else 0.0 (a, b not NaN), as a float tensor: a bool mask and torch.where
+    are ~5x slower per element on CPU; selections are then torch.lerp with weights 0 or 1 (exact:
+    lerp returns start at weight 0 and end at weight 1). b − a > 0 exactly when a < b (a float
+    difference is 0 only for equal operands); an in-place comparison keeps the float dtype."""
+    return (b - a).gt_(0.0)
+
+
+def _at_least(a, b):
+    """1.0 where a >= b, else 0.0 (see _below)."""
+    return (a - b).ge_(0.0)
 
 
 def signed_distance(g, K, px, py, track=False):
@@ -462,7 +468,7 @@ def signed_distance(g, K, px, py, track=False):
                 kd, td, qxb, qyb = (torch.lerp(a, b, bd) for a, b in ((kd, kk), (td, t), (qxb, qx), (qyb, qy)))
                 ke, te, nxb, nyb = (torch.lerp(a, b, be) for a, b in ((ke, kk), (te, t), (nxb, nx), (nyb, ny)))
             d2, emin = torch.minimum(d2, dk), torch.minimum(emin, ek)
-    inside = 1.0 - _below(emin, 0.0)
+    inside = _at_least(emin, 0.0)
     # inside a convex polygon the distance to the boundary is the distance to the nearest edge line
     r = d2.clamp_(min=torch.finfo(d2.dtype).tiny).sqrt_()
     d = torch.lerp(-r, emin, inside)
@@ -538,7 +544,7 @@ def edge_sums(gd, k, t, ux, uy, K, row_shape):
     parts = (ga * ux, ga * uy, gb * ux, gb * uy)
     out = []
     for e in range(K):
-        m = (k - e).abs_().clamp_(max=1.0).neg_().add_(1.0)  # 1.0 where k == e
+        m = (k - e).eq_(0.0)  # 1.0 where k == e (float, see _below)
         out.append(torch.stack([(v * m).sum_to_size(row_shape).view(-1) for v in parts]))
     return torch.stack(out)
 
@@ -546,7 +552,7 @@ def edge_sums(gd, k, t, ux, uy, K, row_shape):
 def keep_mask(x, x_min, x_cut):
     """1.0 for the pairs that count, x >= x_min (coverage >= eps) and x > x_cut, else 0.0
     (arithmetic, see _below); None: all count."""
-    keep = 1.0 - _below(x, x_min) if x_min is not None else None
+    keep = _at_least(x, x_min) if x_min is not None else None
     if x_cut is not None:
         above = _below(x_cut, x)
         keep = above if keep is None else keep * above
