@@ -86,8 +86,9 @@ class FusedChains:
             return None
 
     def forward(self, geom, blk, tau, x_cut):
-        """Generator terms g (shaped as the block's arrays) of raster.Block ``blk``, or None: run it eagerly (also when
-        a pair saturated: the eager path's masks handle that, in the backward too)."""
+        """Generator terms g (shaped as the block's arrays) of raster.Block ``blk``, or None: run it
+        eagerly (also when a pair saturated: the eager path's masks handle that, in the backward
+        too)."""
         out = self._call(0, geom, blk.face, blk.xnum, blk.cnum, blk.H, blk.py, tau, x_cut)
         if out is None or not bool(torch.isfinite(out[1])):
             return None
@@ -95,8 +96,8 @@ class FusedChains:
         return out[0]
 
     def backward(self, geom, blk, tau, x_cut, w):
-        """(corner sums [K, 4, R], ∂L/∂τ) of ``blk`` given ∂L/∂S per pair ``w`` (the block's shape), or None:
-        run it eagerly (so do the blocks whose forward did)."""
+        """(corner sums [K, 4, R], ∂L/∂τ) of ``blk`` given ∂L/∂S per pair ``w`` (the block's shape),
+        or None: run it eagerly (so do the blocks whose forward did)."""
         if id(blk) not in self._unsaturated:
             return None
         return self._call(1, geom, blk.face, blk.xnum, blk.cnum, blk.H, blk.py, tau, x_cut, w)

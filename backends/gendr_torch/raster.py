@@ -3,13 +3,13 @@
 Never materialises B·H·W·F. Per face we build a screen-space bounding box grown by the culling
 distance of the distribution (coverage < eps beyond it) and enumerate the rows of each box. Rows
 are evaluated as [rows, width] blocks (narrow ones transposed, see Block) of at most ``max_pairs``
-pairs (memory O(pixels + faces + max_pairs)), per-face and per-row data broadcasting along the row. Alpha is one autograd Function
-(:class:`SoftAlpha`): its backward recomputes each block and applies the analytic derivative of the
-distance, with the coverage/generator derivative from local autograd on the spec formulas, so
-nothing per pair is stored. Max-type aggregates and the RGB blends work on bands of image rows
-(every pair of a pixel in one block); the blends are plain autograd per band, checkpointed when
-there are several bands. Gradients are exact w.r.t. everything upstream (vertices, camera, τ,
-colours).
+pairs (memory O(pixels + faces + max_pairs)), per-face and per-row data broadcasting along the
+row. Alpha is one autograd Function (:class:`SoftAlpha`): its backward recomputes each block and
+applies the analytic derivative of the distance, with the coverage/generator derivative from
+local autograd on the spec formulas, so nothing per pair is stored. Max-type aggregates and the
+RGB blends work on bands of image rows (every pair of a pixel in one block); the blends are plain
+autograd per band, checkpointed when there are several bands. Gradients are exact w.r.t.
+everything upstream (vertices, camera, τ, colours).
 """
 from __future__ import annotations
 
@@ -346,6 +346,7 @@ class Block:
         return torch.stack(a.unbind(0), 1).view(-1)  # (~2x faster than a.t().reshape(-1) here)
 
     def pix_by_rows(self):
+        """:meth:`pix` flattened row by row (computed directly, without a transposing copy)."""
         if not self.transposed:
             return self.pix().reshape(-1)
         return (self.pix0.view(-1, 1) + torch.arange(self.width, dtype=torch.int32, device=self.pix0.device)).view(-1)
