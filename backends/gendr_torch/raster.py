@@ -699,8 +699,8 @@ class SoftAlpha(torch.autograd.Function):
             for r0, r1, blk in plan.bands():
                 if blk is None:
                     continue
-                shape = blk.pix().shape
-                pix = blk.pix().reshape(-1).long()
+                pix = blk.pix()
+                shape, pix = pix.shape, pix.reshape(-1).long()
                 Ap = A[:, r0:r1].reshape(-1)[pix].view(shape)
                 w = gA[:, r0:r1].reshape(-1)[pix].view(shape)
                 d, k, t, ux, uy = signed_distance(geom.index_select(1, blk.face), K, blk.px(), blk.py, track=True)
