@@ -183,13 +183,18 @@ def test_torch_inputs_frozen_match_torch_backend(blend, tcn):
             assert float((x - y).abs().max()) <= 1e-9
 
 
+@pytest.mark.parametrize("layout", ["face-major", "face-major 2 chunks", "face-major row chunks", "pixel-major"])
 @pytest.mark.parametrize("dist,tcn", [("logistic", "probabilistic"), ("gaussian", "einstein"),
                                       ("gamma", "frank"), ("cauchy", "dombi"), ("uniform", "yager")])
-def test_custom_backward_matches_generic_reverse_loop(monkeypatch, dist, tcn):
-    """AlphaSum's hand-written backward gives Dr.Jit's generic reverse-mode derivatives (vertices,
-    camera, τ), float64."""
+def test_custom_backward_matches_generic_reverse_loop(monkeypatch, dist, tcn, layout):
+    """AlphaSum's hand-written backward, in each layout, gives Dr.Jit's generic reverse-mode
+    derivatives (vertices, camera, τ), float64."""
     tkw = {"frank": {"p": 10.0}, "dombi": {"p": 2.0}, "yager": {"p": 2.0}}.get(tcn, {})
     dkw = {"gamma": {"shape": 2.0}}.get(dist, {})
+    monkeypatch.setattr(R, "FACE_MAJOR_RADIUS_PX", -1.0 if layout == "pixel-major" else math.inf)
+    # lanes per face (chunks, summed after the loop): 1, 2, or one per image row
+    chunks = {"face-major": 1, "face-major 2 chunks": 2, "face-major row chunks": 1 << 20}.get(layout, 1)
+    monkeypatch.setattr(R, "FACE_LANES", chunks * len(MESH.faces))
     res = []
     for custom in (True, False):
         monkeypatch.setattr(R, "CUSTOM_BACKWARD", custom)
