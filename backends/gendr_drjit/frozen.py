@@ -21,9 +21,9 @@ docs/freeze.rst). So the frozen render is wrapped in a ``dr.CustomOp``: its forw
 function (no AD), its backward a second frozen function that re-creates the inputs as AD leaves,
 renders, back-propagates the incoming image gradient *inside* the recording and returns the
 input gradients. Both replay without tracing; the caller's AD graph (vertices -> ..., τ, camera
-parameters) is unaffected. The forward replay returns the per-pixel generator sums S (and the
-saturation counts) of the archimedean T-conorms as residuals, so the backward replay does not
-re-run the forward loop (other instances and the RGB blends recompute it there).
+parameters) is unaffected. The forward replay returns residuals — the per-pixel generator sums S
+(and the saturation counts) of the archimedean T-conorms, the arg-max faces of max — so the
+backward replay does not re-run the forward loop (the RGB blends recompute theirs there).
 """
 from __future__ import annotations
 
@@ -63,7 +63,7 @@ def _render(st, inp, cull, faces_u, resid=None, keep_sums=False):
                                      st.faces_np, col, st.per_face, inp["tau"],
                                      cull_r=cull if st.finite else None, clip=st.clip, faces_u=faces_u, resid=resid,
                                      keep_sums=keep_sums)
-    return out, fc.all_inside, ((fc.S, fc.nsat) if fc.S is not None else None)
+    return out, fc.all_inside, fc.resid
 
 
 class FrozenRenderer:

@@ -939,7 +939,7 @@ class AlphaSum(dr.CustomOp):
 
 def alpha_archimedean(s, fc, T, ops, pix, pix1, tau, resid=None, keep_sums=False):
     """Alpha of an archimedean T-conorm, or of the mean (``average``: S/F, F the number of faces of
-    the mesh), as a row-major image [B·H·W]; sets fc.S, fc.nsat (the
+    the mesh), as a row-major image [B·H·W]; sets fc.resid = (S, nsat) (the
     loop's sums). ``pix``: the strip lanes of :func:`alpha_sums`; ``pix1`` one pixel per lane (the
     generic reverse-mode loop). ``resid``: (S, nsat) of an earlier forward pass of the same inputs
     (frozen backward replays reuse them); ``keep_sums``: store S, nsat when the loop runs (the frozen
@@ -966,7 +966,7 @@ def alpha_archimedean(s, fc, T, ops, pix, pix1, tau, resid=None, keep_sums=False
     else:
         S, nsat = alpha_sums(s, fc, T, ops, pix, tau)
         dr.schedule(S, nsat)  # one loop kernel for all rows (each gather below would evaluate its own)
-    fc.S, fc.nsat = S, nsat
+    fc.resid = (S, nsat)
     A = []
     if tcn.kind == MEAN:  # no saturation, no singular point: A = S/F
         return pix.to_image([tcn.from_sum(ops, Sr, fc.F) for Sr in S])
@@ -996,7 +996,11 @@ def alpha_sum_generic(s, fc, T, ops, pix, tau):
     return S, nsat
 
 
-def alpha_max(s, fc, T, ops, pix, tau):
+def alpha_max(s, fc, T, ops, pix, tau, resid=None):
+    """Alpha of max (the covering probability of the arg-max face, differentiable through that face)
+    or of the hard "or" (0/1), one pixel per lane. For max, sets fc.resid = (arg,), the arg-max
+    faces; ``resid``: those of an earlier forward pass of the same inputs (frozen backward replays
+    skip the arg-max loop)."""
     tcn = s.tconorm
     px, py = pix.px, pix.py[0]
     tau_d = dr.detach(tau)
@@ -1004,18 +1008,23 @@ def alpha_max(s, fc, T, ops, pix, tau):
 
     def body(w, bits, best, arg):
         f, w, bits = pix.next_face(w, bits)
-        d, _ = signed_distance(fc, T, f, px, py)
+        d, _, _ = distance_parts(fc, T, f, px, py, False)  # (no AD here: untracked)
         p = coverage(s, ops, d, tau_d, x_cut)
         better = p > best
         return w, bits, dr.select(better, p, best), dr.select(better, f, arg)
 
     hard_or = tcn.kind != MAX  # the logical "or": decided once some face covers with p >= 1/2
-    with dr.suspend_grad():
-        _, _, best, arg = dr.while_loop((*pix.start(), dr.zeros(T.Float, pix.n), dr.full(T.UInt32, _NONE, pix.n)),
-                                        lambda w, bits, b, a: (bits != 0) & (b < 0.5) if hard_or else bits != 0,
-                                        body, labels=("w", "bits", "best", "arg"))
+    if resid is not None and not hard_or:
+        (arg,) = resid
+    else:
+        with dr.suspend_grad():
+            _, _, best, arg = dr.while_loop(
+                (*pix.start(), dr.zeros(T.Float, pix.n), dr.full(T.UInt32, _NONE, pix.n)),
+                lambda w, bits, b, a: (bits != 0) & (b < 0.5) if hard_or else bits != 0,
+                body, labels=("w", "bits", "best", "arg"))
     if hard_or:
         return dr.select(best >= 0.5, T.Float(1.0), T.Float(0.0))  # typed: plain floats give float32
+    fc.resid = (arg,)
     has = arg != _NONE
     f = dr.select(has, arg, 0)
     d, _ = signed_distance(fc, T, f, px, py)
@@ -1030,7 +1039,7 @@ def nearest_face(fc, T, pix, cull):
 
     def body(w, bits, best, arg):
         f, w, bits = pix.next_face(w, bits)
-        _, inside = signed_distance(fc, T, f, px, py)
+        _, inside, _ = distance_parts(fc, T, f, px, py, False)
         if cull:
             inside = inside & dr.gather(T.Bool, fc.front, f)
         _, depth = _bary_depth(fc, T, [dr.gather(T.Float, a, f) for a in fc.shade[:12]], px, py)
@@ -1058,8 +1067,8 @@ def rgb_softmax(s, fc, T, ops, pix, tau):
     tau_d = dr.detach(tau)
     x_cut = s.cutoff_argument(ops, tau_d)  # (once, outside the loops)
 
-    def live_zt(f, tau_):
-        d, _ = signed_distance(fc, T, f, px, py)
+    def live_zt(f, tau_, track=True):
+        d = signed_distance(fc, T, f, px, py)[0] if track else distance_parts(fc, T, f, px, py, False)[0]
         p = coverage(s, ops, d, tau_, x_cut)
         live = p > 0.0
         if cull:
@@ -1069,7 +1078,7 @@ def rgb_softmax(s, fc, T, ops, pix, tau):
 
     def body_max(w, bits, m):
         f, w, bits = pix.next_face(w, bits)
-        live, _, zt, _ = live_zt(f, tau_d)
+        live, _, zt, _ = live_zt(f, tau_d, False)
         return w, bits, dr.select(live, dr.maximum(m, zt), m)
 
     with dr.suspend_grad():
@@ -1140,12 +1149,12 @@ def render_parts(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, colors
     # is 8 or 16 lanes on the CPU, a CUDA warp 32; one pixel per lane fills it from one 4×4 tile)
     order = tile_order(T, bins) if settings.tconorm.streams and bins.tile ** 2 // strip < 32 else None
     pix1 = Pixels(T, fc.B, H, W, bins, order=order)  # one pixel per lane: max, "or", the RGB blends
-    fc.S = fc.nsat = None
+    fc.resid = None
     if settings.tconorm.streams:  # archimedean T-conorms and the mean
         strips = Pixels(T, fc.B, H, W, bins, rows=strip, order=order)
         A = alpha_archimedean(settings, fc, T, ops, strips, pix1, tau, resid, keep_sums)
     else:
-        A = pix1.to_image(alpha_max(settings, fc, T, ops, pix1, tau))
+        A = pix1.to_image(alpha_max(settings, fc, T, ops, pix1, tau, resid))
     if settings.blend is None:
         rgb = None
     elif settings.blend == "hard":
