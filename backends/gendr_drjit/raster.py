@@ -1022,6 +1022,8 @@ def alpha_max(s, fc, T, ops, pix, tau, resid=None):
                 (*pix.start(), dr.zeros(T.Float, pix.n), dr.full(T.UInt32, _NONE, pix.n)),
                 lambda w, bits, b, a: (bits != 0) & (b < 0.5) if hard_or else bits != 0,
                 body, labels=("w", "bits", "best", "arg"))
+        if not hard_or:
+            dr.eval(arg)  # stored once: read by the winning face's gathers and returned as residual
     if hard_or:
         return dr.select(best >= 0.5, T.Float(1.0), T.Float(0.0))  # typed: plain floats give float32
     fc.resid = (arg,)
