@@ -57,12 +57,11 @@ def camera_key(camera):
             tuple(sorted(camera.array_params())))
 
 
-def _render(st, inp, cull, faces_u, resid=None, keep_sums=False):
+def _render(st, inp, cull, faces_u, resid=None):
     col = None if inp["col"] is None else (inp["col"], st.cb)
     out, _, fc = raster.render_parts(st.settings, st.camera, st.ops, st.T, inp["P"], st.Bc, inp["v"], st.Bv, st.V,
                                      st.faces_np, col, st.per_face, inp["tau"],
-                                     cull_r=cull if st.finite else None, clip=st.clip, faces_u=faces_u, resid=resid,
-                                     keep_sums=keep_sums)
+                                     cull_r=cull if st.finite else None, clip=st.clip, faces_u=faces_u, resid=resid)
     return out, fc.all_inside, fc.resid
 
 
@@ -85,8 +84,8 @@ class FrozenRenderer:
 
     # (``key`` is a string naming everything static: a new key records anew, an old one replays)
     def _forward(self, inp, cull, faces_u, key):
-        # (the sums are outputs too: one loop kernel computes both)
-        return _render(self.static[key], inp, cull, faces_u, keep_sums=True)
+        # (the residuals are outputs too: one loop kernel computes them with the image)
+        return _render(self.static[key], inp, cull, faces_u)
 
     def _backward(self, inp, cull, faces_u, resid, grad_out, need, key):
         st = self.static[key]

@@ -937,13 +937,12 @@ class AlphaSum(dr.CustomOp):
         return "gendr alpha sum"
 
 
-def alpha_archimedean(s, fc, T, ops, pix, pix1, tau, resid=None, keep_sums=False):
+def alpha_archimedean(s, fc, T, ops, pix, pix1, tau, resid=None):
     """Alpha of an archimedean T-conorm, or of the mean (``average``: S/F, F the number of faces of
-    the mesh), as a row-major image [B·H·W]; sets fc.resid = (S, nsat) (the
-    loop's sums). ``pix``: the strip lanes of :func:`alpha_sums`; ``pix1`` one pixel per lane (the
-    generic reverse-mode loop). ``resid``: (S, nsat) of an earlier forward pass of the same inputs
-    (frozen backward replays reuse them); ``keep_sums``: store S, nsat when the loop runs (the frozen
-    forward returns them)."""
+    the mesh), as a row-major image [B·H·W]; sets fc.resid = (S, nsat) (the loop's sums; the
+    frozen forward returns them). ``pix``: the strip lanes of :func:`alpha_sums`; ``pix1`` one pixel
+    per lane (the generic reverse-mode loop). ``resid``: (S, nsat) of an earlier forward pass of the
+    same inputs (frozen backward replays reuse them)."""
     tcn = s.tconorm
     learn = list(tcn.learnable.values())
     p_ad = bool(learn) and dr.grad_enabled(learn[0])
@@ -1125,7 +1124,7 @@ def face_major_backward(radius, H):
 
 
 def render_parts(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, colors, per_face, tau, *, cull_r=None,
-                 clip=None, faces_u=None, resid=None, keep_sums=False, tex=None):
+                 clip=None, faces_u=None, resid=None, tex=None):
     """(image [B·H·W·4], B, fc): as :func:`render`; ``cull_r`` (an opaque Dr.Jit scalar, or None
     to derive it from the settings' τ), ``clip`` and ``faces_u`` let a frozen function pass
     everything data-dependent in as Dr.Jit inputs (see backend.FrozenRenderer)."""
@@ -1154,7 +1153,7 @@ def render_parts(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, colors
     fc.resid = None
     if settings.tconorm.streams:  # archimedean T-conorms and the mean
         strips = Pixels(T, fc.B, H, W, bins, rows=strip, order=order)
-        A = alpha_archimedean(settings, fc, T, ops, strips, pix1, tau, resid, keep_sums)
+        A = alpha_archimedean(settings, fc, T, ops, strips, pix1, tau, resid)
     else:
         A = pix1.to_image(alpha_max(settings, fc, T, ops, pix1, tau, resid))
     if settings.blend is None:
