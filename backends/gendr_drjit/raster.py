@@ -126,6 +126,7 @@ def prepare_faces(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, color
     if faces_u is None:
         faces_u = UInt32(faces_np.reshape(-1).astype(np.uint32))
     vid = [dr.gather(UInt32, faces_u, f_f * 3 + c) for c in range(3)]
+    dr.schedule(xv, yv, zv)  # gathered below: evaluated together, in one kernel (not one each)
     corner = [tuple(dr.gather(Float, a, b_f * V + vid[c]) for a in (xv, yv, zv)) for c in range(3)]
     near = camera.near
     inside = [c[2] <= -near for c in corner]
@@ -172,6 +173,11 @@ def prepare_faces(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, color
     fc.all_inside = all_in
     fc.Xd, fc.Yd = [dr.detach(x) for x in X], [dr.detach(y) for y in Y]
     fc.ad = any(dr.grad_enabled(a) for a in X + Y)
+    area2 = sum(dr.detach(X[k]) * dr.detach(Y[(k + 1) % K]) - dr.detach(X[(k + 1) % K]) * dr.detach(Y[k]) for k in range(K))
+    fc.orient = Float(dr.select(area2 > 0, 1.0, dr.select(area2 < 0, -1.0, 0.0)))
+    fc.front = area2 > 0
+    # the loops and the binning gather these: evaluated together, in one kernel (not one each)
+    dr.schedule(*X, *Y, fc.orient, fc.front)
     if fc.ad:  # corners flattened (face, corner) for the linearised distance (see signed_distance)
         lane = dr.arange(UInt32, m * K)
         kf, ff = lane % K, lane // K
@@ -180,9 +186,6 @@ def prepare_faces(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, color
         for k in range(K):
             fc.Xall = dr.select(kf == k, dr.gather(Float, X[k], ff), fc.Xall)
             fc.Yall = dr.select(kf == k, dr.gather(Float, Y[k], ff), fc.Yall)
-    area2 = sum(dr.detach(X[k]) * dr.detach(Y[(k + 1) % K]) - dr.detach(X[(k + 1) % K]) * dr.detach(Y[k]) for k in range(K))
-    fc.orient = Float(dr.select(area2 > 0, 1.0, dr.select(area2 < 0, -1.0, 0.0)))
-    fc.front = area2 > 0
     fc.near, fc.far = camera.near, camera.far
     fc.shade = None
     fc.tex = None if tex is None else tex[:5]
@@ -474,6 +477,7 @@ class Pixels:
         """Row-major image [B·H·W] of per-lane values: one array (rows = 1) or a list of ``rows``."""
         if not isinstance(a, (list, tuple)):
             a = [a]
+        dr.schedule(*a)  # the gathers evaluate their sources: together, in one kernel
         if len(a) == 1:
             return dr.gather(type(a[0]), a[0], self.image_index)
         slot, lane = self.image_index // self.n, self.image_index % self.n
