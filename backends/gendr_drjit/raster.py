@@ -346,7 +346,7 @@ class Bins:
     the faces in ascending order (as the former host lists did), so sums are deterministic."""
 
     def __init__(self, fc, H, W, cull_r, T, radius=0.0):
-        K, F, B = fc.K, fc.F, fc.B
+        F, B = fc.F, fc.B
         self.tile = TILE if TILE else tile_size(B, H, W, F, radius)  # radius: a Python float (layout only)
         t = self.tile
         self.ntx, self.nty = -(-W // t), -(-H // t)
@@ -785,7 +785,7 @@ class AlphaSum(dr.CustomOp):
 
     def backward(self):
         s, fc, T, ops, pix = self.ctx.parts
-        dist, tcn, R, K = s.distribution, s.tconorm, pix.rows, fc.K
+        dist, tcn, K = s.distribution, s.tconorm, fc.K
         Float = T.Float
         tau = dr.detach(self.tau)
         x_eps, x_cut = dist.argument_threshold(s.eps), s.cutoff_argument(ops, tau)
