@@ -138,6 +138,29 @@ def test_shape_changes_record_anew():
     assert seen[:3] == [1, 2, 3] and seen[3:] == [3, 3]
 
 
+def test_backward_layout_follows_the_radius_and_records_anew(monkeypatch):
+    """The alpha sums' backward is face-major up to FACE_MAJOR_RADIUS_PX pixels of culling radius
+    and pixel-major beyond; the layout is part of the frozen recording key (a τ that crosses the
+    threshold records anew, going back replays), and both equal the unfrozen result."""
+    calls = []
+    for name in ("_face_loop", "_pixel_loop"):
+        orig = getattr(R.AlphaSum, name)
+        monkeypatch.setattr(R.AlphaSum, name, lambda self, *a, _o=orig, _n=name: calls.append(_n) or _o(self, *a))
+    size = (24, 20)
+    shared = _renderer(True, size=size).backend
+    seen = []
+    for tau, traced in ((0.05, "_face_loop"), (0.5, "_pixel_loop"), (0.05, None), (0.5, None)):
+        r = _renderer(True, tau=tau, size=size)
+        r.backend = shared
+        assert R.face_major_backward(R.culling_radius(r.settings, tau), size[0]) == (tau == 0.05)
+        calls.clear()
+        a = _fwd_bwd(r, MESH.vertices)
+        assert calls == ([traced] if traced else [])  # traced while recording; replays run no Python
+        _close(a, _fwd_bwd(_renderer(False, tau=tau, size=size), MESH.vertices))
+        seen.append(shared.frozen.backward_recordings)
+    assert seen == [1, 2, 2, 2]
+
+
 def test_near_plane_clipping_records_k4():
     """Faces crossing the near plane: the K = 3 replay detects it (device flag) and re-renders with
     the clipped (K = 4) recording; same image and gradients as unfrozen."""
