@@ -146,13 +146,14 @@ def test_backward_layout_follows_the_radius_and_records_anew(monkeypatch):
     for name in ("_face_loop", "_pixel_loop"):
         orig = getattr(R.AlphaSum, name)
         monkeypatch.setattr(R.AlphaSum, name, lambda self, *a, _o=orig, _n=name: calls.append(_n) or _o(self, *a))
-    size = (24, 20)
+    size = (64, 48)  # 16 px = 0.5 screen units: τ 0.08 is beyond it, yet not a wide layout (< 1 unit)
     shared = _renderer(True, size=size).backend
     seen = []
-    for tau, traced in ((0.05, "_face_loop"), (0.5, "_pixel_loop"), (0.05, None), (0.5, None)):
+    for tau, traced in ((0.02, "_face_loop"), (0.08, "_pixel_loop"), (0.02, None), (0.08, None)):
         r = _renderer(True, tau=tau, size=size)
         r.backend = shared
-        assert R.face_major_backward(R.culling_radius(r.settings, tau), size[0]) == (tau == 0.05)
+        radius = R.culling_radius(r.settings, tau)
+        assert R.face_major_backward(radius, size[0]) == (tau == 0.02) and not R.wide_layout(radius)
         calls.clear()
         a = _fwd_bwd(r, MESH.vertices)
         assert calls == ([traced] if traced else [])  # traced while recording; replays run no Python
