@@ -439,7 +439,7 @@ class Pixels:
         self.word0 = tile * bins.nw  # the tile's first mask word
         self.face0 = b * bins.F      # faces of batch element b
         self.n = n
-        self.B, self.H, self.W = B, H, W
+        self.H, self.W = H, W
         self.bins, self.T = bins, T
         q = dr.arange(T.UInt32, B * H * W)
         jj, ii, bb = q % W, (q // W) % H, q // (H * W)
@@ -833,15 +833,8 @@ class AlphaSum(dr.CustomOp):
                 gk = gk + dr.select(dl != 0.0, dl * gkk, 0.0)
             return (gt, gp, gk, *acc)
 
-        if fc.face_major:
-            gt, gp, gk, acc = self._face_loop(pair, delta, want_xy, x_eps, x_cut, tau)
-            if want_xy:
-                m = dr.width(acc[0])
-                for k in range(K):
-                    dr.scatter(gX, acc[2 * k], dr.arange(T.UInt32, m) * K + k)
-                    dr.scatter(gY, acc[2 * k + 1], dr.arange(T.UInt32, m) * K + k)
-        else:
-            gt, gp, gk = self._pixel_loop(pair, delta, want_xy, x_eps, x_cut, tau, gX, gY)
+        loop = self._face_loop if fc.face_major else self._pixel_loop
+        gt, gp, gk = loop(pair, delta, want_xy, x_eps, x_cut, tau, gX, gY)
         if want_xy:
             self.set_grad_in("Xall", gX)
             self.set_grad_in("Yall", gY)
@@ -852,12 +845,12 @@ class AlphaSum(dr.CustomOp):
         if want_k:
             self.set_grad_in("dp", dr.sum(gk))
 
-    def _face_loop(self, pair, delta, want_xy, x_eps, x_cut, tau):
+    def _face_loop(self, pair, delta, want_xy, x_eps, x_cut, tau, gX, gY):
         """Face-major backward (narrow culling radius, :func:`face_major_backward`): one lane per
         (face, chunk) walks the pixels of the face's box grown by the culling radius (chunk c of C
         takes the box rows c, c + C, ...), gathers each pixel's δ_S and accumulates the face's corner
-        gradients in registers; the chunks are summed in chunk order afterwards. No scatter per
-        pair. Visits the same live pairs as the pixel-major loop (a pixel outside the box is beyond
+        gradients in registers; the chunks are summed in chunk order afterwards and written to
+        gX, gY once per face. No scatter per pair. Visits the same live pairs as the pixel-major loop (a pixel outside the box is beyond
         the radius); only the order of the sums differs."""
         s, fc, T, ops, pix = self.ctx.parts
         dist, K, Float, Int32 = s.distribution, fc.K, T.Float, T.Int32
@@ -903,7 +896,12 @@ class AlphaSum(dr.CustomOp):
 
             acc = list(dr.while_loop((dr.zeros(T.UInt32, m), *(dr.zeros(Float, m) for _ in acc)),
                                      lambda c, *t: c < C, add_chunk)[1:])
-        return gt, gp, gk, acc
+        if want_xy:
+            corner0 = dr.arange(T.UInt32, m) * K
+            for k in range(K):
+                dr.scatter(gX, acc[2 * k], corner0 + k)
+                dr.scatter(gY, acc[2 * k + 1], corner0 + k)
+        return gt, gp, gk
 
     def _pixel_loop(self, pair, delta, want_xy, x_eps, x_cut, tau, gX, gY):
         """Pixel-major backward: the strip lanes of the forward loop over their tiles' faces,
