@@ -1,6 +1,7 @@
 """The :class:`Renderer` facade: validated settings + a backend plug-in that does the work."""
 from __future__ import annotations
 
+import copy
 import inspect
 import math
 from dataclasses import dataclass, field, replace
@@ -274,6 +275,23 @@ class Renderer:
         return (f"Renderer({s.distribution.label()}, {s.tconorm.label()}, tau={s.tau_value:g}, "
                 f"image_size={s.image_size}, backend={self.backend.name!r}, eps={s.eps:g}, blend={s.blend!r}"
                 + ("" if s.cutoff is None else f", cutoff={s.cutoff:g}") + ")")
+
+    def with_tau(self, tau) -> "Renderer":
+        """This renderer with scale ``tau`` (checked as in the constructor), sharing this one's
+        backend object, so its caches (e.g. Dr.Jit's frozen recordings, which take τ as an input)
+        serve both. For a τ schedule: cheaper than a new :class:`Renderer` per step, which would
+        build a backend object each time.
+
+        >>> import gendr
+        >>> r = gendr.Renderer(tau=0.1, image_size=8, backend="torch")
+        >>> r2 = r.with_tau(0.01)
+        >>> r2.settings.tau_value, r.settings.tau_value, r2.backend is r.backend
+        (0.01, 0.1, True)
+        """
+        _check_tau(tau)
+        new = copy.copy(self)
+        new.settings = replace(self.settings, tau=tau)
+        return new
 
     def render(self, vertices, faces, camera: Camera, *, vertex_colors=None, face_colors=None, texture=None,
                uvs=None, uv_faces=None):

@@ -67,12 +67,13 @@ def test_freeze_option():
 @pytest.mark.parametrize("double", [True, False])
 def test_replay_matches_unfrozen_after_tau_vertex_and_camera_changes(double):
     rng = np.random.default_rng(1)
-    shared = _renderer(True).backend  # one backend object: its frozen functions see every call
+    first = _renderer(True)  # with_tau shares its backend object: its frozen functions see every call
+    shared = first.backend
     for step, (tau, eye, fov) in enumerate([(0.05, (0.1, 0.05, 3.0), 40.0), (0.03, (0.0, 0.2, 2.8), 44.0),
                                            (0.08, (-0.1, 0.0, 3.2), 38.0), (0.05, (0.1, 0.05, 3.0), 40.0)]):
         verts = MESH.vertices * (1.0 + 0.05 * rng.standard_normal(MESH.vertices.shape))
-        frozen = _renderer(True, tau=tau)
-        frozen.backend = shared
+        frozen = first.with_tau(tau)
+        assert frozen.backend is shared
         plain = _renderer(False, tau=tau)
         a = _fwd_bwd(frozen, verts, eye=eye, fov=fov, double=double)
         b = _fwd_bwd(plain, verts, eye=eye, fov=fov, double=double)

@@ -88,6 +88,17 @@ def test_bad_tau(tau):
     assert "tau" in str(e.value)
 
 
+@pytest.mark.parametrize("tau", [0.0, -0.1, math.nan, math.inf, torch.tensor(-1.0), True, None, "abc"])
+def test_with_tau_checks_like_the_constructor(tau):
+    r = renderer(tau=0.05)
+    with pytest.raises(ParameterError) as e:
+        r.with_tau(tau)
+    assert "tau" in str(e.value)
+    assert r.settings.tau_value == 0.05  # the renderer it was called on is unchanged
+    with pytest.raises(ShapeError):
+        r.with_tau(torch.tensor([0.1, 0.2]))
+
+
 def test_tau_string_is_rejected_like_every_other_number():
     """eps="0", gamma="1" ... are ParameterErrors ("must be a number"); tau="0.1" should be too."""
     with pytest.raises(ParameterError) as e:

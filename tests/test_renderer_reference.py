@@ -401,3 +401,22 @@ def test_every_tconorm_exhaustive(setting, eps, blend, camera):
 @pytest.mark.parametrize("setting", DIST_SETTINGS, ids=[_id(s) for s in DIST_SETTINGS])
 def test_distribution_times_tconorm(setting, tcn):
     assert_close(*run_both(setting, tcn, blend="softmax", eps=1e-3, camera_kind="perspective", gamma=0.05))
+
+
+def test_with_tau_renders_like_a_new_renderer_at_that_tau():
+    """Renderer.with_tau (a τ schedule's renderer, sharing the backend object) gives the image and
+    the gradients (vertices, a tensor τ) of a renderer built anew at that τ, bit for bit."""
+    cam, _ = make_camera("perspective")
+    base = gendr.Renderer("gaussian", gendr.tconorm("yager", p=2.0), tau=0.3, image_size=(H, W), backend="torch", eps=1e-3, blend=None)
+    results = []
+    for make in (lambda t: base.with_tau(t), lambda t: gendr.Renderer("gaussian", gendr.tconorm("yager", p=2.0), tau=t, image_size=(H, W),
+                                                                      backend="torch", eps=1e-3, blend=None)):
+        verts = scene_vertices().requires_grad_(True)
+        tau = torch.tensor(0.05, dtype=torch.float64, requires_grad=True)
+        alpha = make(tau).render(verts, FACES, cam)[..., 3]
+        (alpha * torch.linspace(-1.0, 1.0, alpha.numel(), dtype=torch.float64).reshape(alpha.shape)).sum().backward()
+        results.append((alpha.detach(), verts.grad, tau.grad))
+    assert base.settings.tau_value == 0.3
+    assert results[0][0].max() > 0 and results[0][2] != 0
+    for a, b in zip(*results):
+        assert torch.equal(a, b)

@@ -156,12 +156,12 @@ class _PoseBase:
         (its frozen recordings, with ``freeze=True``, serve all)."""
         cfg = self.cfg
         tau = log_tau_schedule(step_index, int(cfg["steps"]), float(cfg["tau_start"]), float(cfg["tau_end"]))
-        renderer = make_renderer(self.dist, self.tcn, tau, self.size, backend=cfg["backend"], eps=float(cfg["eps"]),
-                                 cutoff=cfg["cutoff"], **self.backend_options)
-        if self.renderer is not None:
-            renderer.backend = self.renderer.backend
-        self.renderer = renderer
-        return renderer
+        if self.renderer is None:
+            self.renderer = make_renderer(self.dist, self.tcn, tau, self.size, backend=cfg["backend"],
+                                          eps=float(cfg["eps"]), cutoff=cfg["cutoff"], **self.backend_options)
+        else:
+            self.renderer = self.renderer.with_tau(tau)
+        return self.renderer
 
     def step(self, step_index: int, callback=None) -> float:
         """One step at τ of ``step_index`` in the schedule: render, loss, backward, Adam. Returns the
