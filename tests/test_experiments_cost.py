@@ -1,9 +1,11 @@
 """The cost model: pair counts from the geometry, the fit, the study counts, the CLI."""
+import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+import gendr
 from gendr.cli import main as gendr_main
 from gendr_experiments.common import paper_data_dir
 from gendr_experiments.cost import CostModel, fit_cost_model, protocol_runs, run_features
@@ -73,22 +75,27 @@ def test_cli_cost_on_the_committed_timing_rows(tmp_path, capsys):
     assert gendr_main(["experiment", "cost", str(RESULTS / "cost_timing.jsonl"), "--studies", "nope"]) == 2
 
 
-def test_the_full_protocol_commands_are_the_studies_the_model_counts():
-    """experiments/paper_grid.sh shape-full / pose-full (printed with GENDR=echo) ask for the grids the
-    cost model prices (PAPER_TAUS, PAPER_LRS, PAPER_ELEVATIONS, PAPER_FINE_STEPS; pose: 2 lr × 3 bins)."""
+def test_the_full_protocol_commands_are_the_studies_the_model_counts(tmp_path):
+    """experiments/paper_grid.sh shape-full / pose-full (printed, shell-quoted, by a stand-in for
+    gendr) ask for the grids the cost model prices (PAPER_TAUS, PAPER_LRS, PAPER_ELEVATIONS,
+    PAPER_FINE_STEPS; pose: 2 lr × 3 bins)."""
     import os
+    import shlex
     import subprocess
-    from gendr_experiments.cli import _floats, build_parser
+    from gendr_experiments.cli import _floats, build_parser, select_instances
     from gendr_experiments.cost import (PAPER_ELEVATIONS, PAPER_FINE_STEPS, PAPER_FINE_STEPS_SQUARED, PAPER_LRS,
                                         PAPER_TAUS, PAPER_TAUS_SQUARED, REDUCED_FINE_STEPS, REDUCED_TAUS)
     script = RESULTS.parent / "paper_grid.sh"
+    show = tmp_path / "show_args"  # labels have spaces ("exponential rev"): print them quoted
+    show.write_text('#!/usr/bin/env bash\nprintf "%q " "$@"; echo\n')
+    show.chmod(0o755)
 
     def parsed(case):
         out = subprocess.run(["bash", str(script), case], capture_output=True, text=True, check=True,
-                             env=dict(os.environ, GENDR="echo", SCHEDULER="tcp://127.0.0.1:8786")).stdout
+                             env=dict(os.environ, GENDR=str(show), SCHEDULER="tcp://127.0.0.1:8786")).stdout
         commands = []
         for line in out.splitlines():
-            args = line.split()
+            args = shlex.split(line)
             assert args[:2] == ["experiment", "sweep"] and "--scheduler" in args
             commands.append(build_parser().parse_args(args[1:]))
         return commands
@@ -101,8 +108,11 @@ def test_the_full_protocol_commands_are_the_studies_the_model_counts():
         assert tuple(_floats(a.elevations)) == PAPER_ELEVATIONS and tuple(_floats(a.fine_steps)) == steps
     # squared: widths sqrt(tau) at half the decade steps = the paper's renderer tau grid
     assert np.allclose(np.square(_floats(squared.taus)), PAPER_TAUS)
+    selected = set()
     for a in parsed("shape"):  # the reduced study the cost model prices as "shape-reduced"
         assert tuple(_floats(a.taus)) == REDUCED_TAUS and tuple(_floats(a.fine_steps)) == REDUCED_FINE_STEPS
+        selected |= {json.dumps(i, sort_keys=True) for i in select_instances(a)}
+    assert len(selected) == len(gendr.paper_grid()) + 46  # every instance, and "average" per distribution
     (p,) = parsed("pose-full")
     assert (p.experiment, p.instances, p.no_refine, p.set) == ("pose", "all", True, ["pairs=200"])
     assert _floats(p.lrs) == [0.1, 0.3] and len(p.bins.split(",")) == 3
