@@ -4,7 +4,7 @@ from __future__ import annotations
 import copy
 import inspect
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from functools import lru_cache
 from importlib import metadata
 from typing import Any
@@ -13,7 +13,7 @@ from .cameras import Camera
 from .distributions import Distribution, distribution as make_distribution
 from .gbuffer import GBuffer
 from .textures import check_settings as _check_texture_settings, check_textured_inputs
-from .errors import (BackendUnavailableError, DTypeError, InputValueError, ParameterError,
+from .errors import (BackendUnavailableError, InputValueError, ParameterError,
                      ShapeError, UnknownNameError)
 from .tconorms import TConorm, tconorm as make_tconorm
 

@@ -15,7 +15,6 @@ targeted tests. ``pytest -m slow`` adds the exhaustive products.
 """
 from __future__ import annotations
 
-import math
 
 import pytest
 import torch
