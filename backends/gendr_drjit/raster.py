@@ -318,6 +318,17 @@ def tile_size(B, H, W, F, radius=0.0):
     return TILES[-1]
 
 
+def pixel_x(Float, j, H, W):
+    """Screen x of the centres of pixel columns ``j`` (1 unit = H/2 pixels). Every loop computes
+    pixel centres with these two functions, so the layouts evaluate the same pairs bit for bit."""
+    return (2.0 * Float(j) + (1.0 - W)) / H
+
+
+def pixel_y(Float, i, H):
+    """Screen y (up) of the centres of pixel rows ``i`` (row 0 at the top)."""
+    return 1.0 - (2.0 * Float(i) + 1.0) / H
+
+
 def pixel_box(fc, H, W, r):
     """Per face (B·F lanes): the pixel index ranges [j0, j1] × [i0, i1] (floats, clipped to the
     image) of its screen box grown by ``r`` screen units (pixel centre j at (2j + 1 − W)/H), and
@@ -433,8 +444,8 @@ class Pixels:
         tyx = tile % (ntx * nty)
         i = (tyx // ntx) * t + (loc // t) * rows
         j = (tyx % ntx) * t + loc % t
-        self.px = (2.0 * T.Float(j) + (1.0 - W)) / H
-        self.py = [1.0 - (2.0 * T.Float(i + r) + 1.0) / H for r in range(rows)]
+        self.px = pixel_x(T.Float, j, H, W)
+        self.py = [pixel_y(T.Float, i + r, H) for r in range(rows)]
         self.rows = rows
         self.word0 = tile * bins.nw  # the tile's first mask word
         self.face0 = b * bins.F      # faces of batch element b
@@ -850,8 +861,8 @@ class AlphaSum(dr.CustomOp):
         (face, chunk) walks the pixels of the face's box grown by the culling radius (chunk c of C
         takes the box rows c, c + C, ...), gathers each pixel's δ_S and accumulates the face's corner
         gradients in registers; the chunks are summed in chunk order afterwards and written to
-        gX, gY once per face. No scatter per pair. Visits the same live pairs as the pixel-major loop (a pixel outside the box is beyond
-        the radius); only the order of the sums differs."""
+        gX, gY once per face. No scatter per pair. Visits the same live pairs as the pixel-major
+        loop (a pixel outside the box is beyond the radius); only the order of the sums differs."""
         s, fc, T, ops, pix = self.ctx.parts
         dist, K, Float, Int32 = s.distribution, fc.K, T.Float, T.Int32
         H, W = pix.H, pix.W
@@ -872,7 +883,7 @@ class AlphaSum(dr.CustomOp):
         face_edges = _face_edges(fc, T, f)
 
         def body(i, j, gt, gp, gk, *acc):
-            px, py = (2.0 * Float(j) + (1.0 - W)) / H, 1.0 - (2.0 * Float(i) + 1.0) / H  # as in Pixels
+            px, py = pixel_x(Float, j, H, W), pixel_y(Float, i, H)
             d, (kk, tt, ux, uy) = _strip_pixel(T, _column_edges(face_edges, px), py, True)
             x = dist.argument(ops, d, tau)
             live = live_pairs(x, x_eps, x_cut)
