@@ -78,3 +78,24 @@ def test_gamma_claim_needs_gamma_rows():
     g = DL.index("gamma(2)")
     assert _verdicts(rows + [_row(g, 0, 1, 0.1)])[claim] == "reproduced"
     assert _verdicts(rows + [_row(g, 0, 1, 0.9)])[claim] == "contradicted"
+
+
+def test_average_cells_change_only_the_average_finding():
+    """"average" is outside the paper's grid: rows of it (here a poor 0.9, for only some distribution
+    rows, as a partial sweep has them) must not enter the distribution and T-conorm comparisons —
+    a row mean over cells that include it would make exactly those rows look worse."""
+    from gendr_experiments.figures import _distribution_rows
+    g05 = DL.index("gamma(0.5) rev")
+    grid = _grid(lambda d, sq, t: 0.3 - 0.2 * (d == g05) + 0.2 * (DL[d] in ("levy", "levy rev")))
+    some = [lab for lab, (d, sq) in _distribution_rows().items() if d in (g05, 0, 3)]
+    avg = [{"key": f"avg-{lab}", "experiment": "shape", "instance": None, "label": f"{lab}|average", "tau": 0.01,
+            "lr": 0.03, "metric": 0.9, "seconds": 1.0, "status": "ok", "success": False} for lab in some]
+    assert len(avg) == 6
+    before = {f.claim: (f.verdict, f.detail) for f in shape_findings(grid)}
+    after = {f.claim: (f.verdict, f.detail) for f in shape_findings(grid + avg)}
+    assert before["average poor"][0] == "not testable" and after["average poor"][0] == "reproduced"
+    assert "over 6 paired cells" in after["average poor"][1]
+    assert after["gamma(0.5) reversed best overall"][0] == "reproduced"
+    for claim in before:
+        if claim != "average poor":
+            assert after[claim] == before[claim], claim

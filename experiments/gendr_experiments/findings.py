@@ -65,8 +65,13 @@ def _compare(claim, a, b, noise, what_a, what_b):
 def shape_findings(rows, noise: float = 0.03) -> list[Finding]:
     """The paper's §5.1 findings, each with its verdict on ``rows`` (shape sweep rows)."""
     best = summarize_best(rows, "shape")
-    M = score_matrix(best)  # [2, 23, 27 T-conorms + extra columns (average)]
     dl, tl = grid_labels()[0], column_labels()
+    ngrid = len(grid_labels()[1])
+    M_all = score_matrix(best)  # [2, 23, 27 T-conorms + extra columns (average)]
+    # the paper's findings are about its grid: every comparison but "average poor" reads only the
+    # grid's T-conorm columns (row means over cells that include "average", a column outside the
+    # grid that only some rows have yet, are not like with like)
+    M = M_all[:, :, :ngrid]
     out = []
     allrows = range(M.shape[1])
 
@@ -136,12 +141,13 @@ def shape_findings(rows, noise: float = 0.03) -> list[Finding]:
 
         # T-conorm columns: each against the median column over the same cells
         def column_vs_median(labels, claim, good):
-            cols = [tl.index(x) for x in labels if x in tl]
-            present = [j for j in range(M.shape[2]) if np.isfinite(M[:, :, j]).any()]
-            if not cols or not any(j in present for j in cols) or len(present) < 3:
+            """``labels``' columns (of the grid, or "average") against the median grid column."""
+            cols = [j for j in (tl.index(x) for x in labels if x in tl) if np.isfinite(M_all[:, :, j]).any()]
+            present = [j for j in range(ngrid) if np.isfinite(M[:, :, j]).any()]
+            if not cols or len(present) < 3:
                 return Finding(claim, "not testable", "too few T-conorm columns run")
             med = np.nanmedian(M[:, :, present], axis=2)  # [2, 23] median column per cell row
-            a = np.nanmean(M[:, :, [j for j in cols if j in present]], axis=2)
+            a = np.nanmean(M_all[:, :, cols], axis=2)
             if good:
                 return _compare(claim, a, med, noise, "/".join(labels), "median column")
             return _compare(claim, med, a, noise, "median column", "/".join(labels))
