@@ -1,5 +1,4 @@
 """gendr_experiments: shape optimisation (§5.1), pose optimisation (§5.2) and their building blocks."""
-import math
 
 import numpy as np
 import pytest
@@ -69,6 +68,30 @@ def test_rotations():
     z = torch.zeros(3, dtype=torch.float64, requires_grad=True)
     axis_angle_to_matrix(z).sum().backward()
     assert torch.isfinite(z.grad).all()
+
+
+@pytest.mark.parametrize("w", [(0.1, -0.2, 0.3), (1.0, 2.0, -0.5), (3.0, 0.1, 0.0), (1e-4, 2e-4, -1e-4),
+                               (0.03, 0.02, -0.025), (0.03, 0.02, -0.035), (0.0, 0.0, 0.0)])
+def test_axis_angle_to_matrix_against_independent_references(w):
+    # θ from 0 through the series/closed-form switch at 0.05 (0.046 and 0.051 above) to 3.0
+    import kornia.geometry.conversions as kc
+    w64 = torch.tensor(w, dtype=torch.float64)
+    x, y, z = w
+    exact = torch.linalg.matrix_exp(torch.tensor([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]], dtype=torch.float64))
+    # matrix_exp (scaling and squaring) is itself off by ~1e-15 at θ ≈ 3 (kornia's Rodrigues: 1.1e-15)
+    assert torch.allclose(axis_angle_to_matrix(w64), exact, rtol=0, atol=2e-15)
+    # float32: the float64 matrix rounded once, so within half an ulp of 1 (kornia's own errs by up to 8e-8)
+    R32 = axis_angle_to_matrix(w64.float())
+    assert R32.dtype == torch.float32
+    assert (R32.double() - exact).abs().max() <= 2.0 ** -25
+    # gradient: finite differences, and kornia's Rodrigues differentiated by autograd (another code)
+    wg = w64.clone().requires_grad_()
+    assert torch.autograd.gradcheck(axis_angle_to_matrix, (wg,))
+    G = torch.tensor([[0.3, -1.2, 0.7], [2.0, 0.1, -0.4], [-0.9, 0.5, 1.1]], dtype=torch.float64)
+    (axis_angle_to_matrix(wg) * G).sum().backward()
+    wk = w64.clone().requires_grad_()
+    (kc.axis_angle_to_rotation_matrix(wk.reshape(1, 3))[0] * G).sum().backward()
+    assert torch.allclose(wg.grad, wk.grad, rtol=0, atol=1e-12)
 
 
 def test_tau_schedule_and_hash():
