@@ -137,3 +137,22 @@ def test_execute_starts_nothing_after_the_deadline(tmp_path):
 def test_tuple_axes_zip_keys():
     cfgs = expand("pose", {"steps": 2}, axes={("angle_min", "angle_max"): [(15, 35), (55, 75)], "seed": [0]})
     assert [(c["angle_min"], c["angle_max"]) for c in cfgs] == [(15, 35), (55, 75)]
+
+
+def test_sweep_cli_counts_reruns_as_runs(tmp_path, capsys):
+    from gendr.cli import main as gendr_main
+    path = tmp_path / "r.jsonl"
+    args = ["experiment", "sweep", "--instances", "5", "--taus", "0.1,0.02", "--no-refine", "--workers", "0", "-q",
+            "--set", "target=tetrahedron", "--set", "steps=2", "--set", "image_size=12", "--set", "views=2",
+            "--set", "subdivisions=1", "-o", str(path)]
+    assert gendr_main(args) == 0
+    assert "2 runs in" in capsys.readouterr().err
+    assert gendr_main(args) == 0
+    assert "0 runs in" in capsys.readouterr().err
+    lines = [json.loads(x) for x in path.read_text().splitlines()]
+    for row in lines:
+        row["code_hash"] = "0" * 16
+    path.write_text("".join(json.dumps(x) + "\n" for x in lines))
+    assert gendr_main(args + ["--other-code", "rerun"]) == 0
+    err = capsys.readouterr().err
+    assert "2 runs in" in err and "; 2 rows in" in err  # two runs replaced two rows

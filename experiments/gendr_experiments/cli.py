@@ -11,6 +11,15 @@ from pathlib import Path
 PROG = "gendr experiment"
 
 
+def _stored_lines(path) -> int:
+    """Rows appended to a results file so far (every run appends one, reruns included)."""
+    try:
+        with open(path) as f:
+            return sum(1 for line in f if line.strip())
+    except FileNotFoundError:
+        return 0
+
+
 def _floats(text):
     return [float(x) for x in text.split(",") if x.strip()]
 
@@ -265,7 +274,7 @@ def cmd_sweep(a) -> int:
     kw = dict(store=a.output, workers=a.workers, scheduler=a.scheduler, retry_errors=a.retry_errors,
               progress=not a.quiet, other_code=a.other_code)
     t0 = time.perf_counter()
-    n0 = len(load_rows(a.output))
+    n0 = _stored_lines(a.output)
     try:
         best = best_setting_search(a.experiment, instances, taus=taus, lrs=lrs, seeds=_ints(a.seeds),
                                    base=base, extra_axes=extra, refine=not a.no_refine,
@@ -276,7 +285,8 @@ def cmd_sweep(a) -> int:
     rows = load_rows(a.output)
     if a.csv:
         write_csv(rows, a.csv)
-    print(f"{len(rows) - n0} new runs in {time.perf_counter() - t0:.1f} s; {len(rows)} rows in {a.output}",
+    # lines appended, not distinct keys: a rerun (--other-code rerun, --retry-errors) replaces a row
+    print(f"{_stored_lines(a.output) - n0} runs in {time.perf_counter() - t0:.1f} s; {len(rows)} rows in {a.output}",
           file=sys.stderr)
     print(f"{'instance':>8s}  {'label':45s} {tau_key:>10s} {'lr':>8s} {'score':>8s}")
     for inst, b in sorted(best.items(), key=lambda kv: kv[1]["score"]):
