@@ -298,7 +298,7 @@ class _Rodrigues(torch.autograd.Function):
     def backward(ctx, grad_R):
         x, y, z, t2, a, h, da, dh = ctx.coefficients
         w = (x, y, z)
-        G = grad_R.detach().double().tolist()
+        G = grad_R.detach().tolist()  # Python floats: float64 arithmetic below on any dtype and device
         # ⟨G, ∂R/∂ω_k⟩ with ∂[ω]×/∂ω_k = [e_k]× and ⟨G, [v]×⟩ = v·g, g = (G₃₂ − G₂₃, G₁₃ − G₃₁, G₂₁ − G₁₂)
         g = (G[2][1] - G[1][2], G[0][2] - G[2][0], G[1][0] - G[0][1])
         trace = G[0][0] + G[1][1] + G[2][2]
