@@ -24,7 +24,7 @@ keeps one thread (``gendr_experiments.common.set_threads``: torch's idle OpenMP 
 and take cores from Dr.Jit's kernels), recorded as ``torch_threads``.
 
 Per case: the step time over ``--repeats`` steps after one warm-up step (median, min, max, stdev;
-repeats default to 10, 3 for cauchy), the step's loss, and the first call, set-up plus first step,
+repeats default to 10 for shape (3 for cauchy) and 60 for pose (10 for cauchy)), the step's loss, and the first call, set-up plus first step,
 in a fresh process (``setup_ms``, ``first_step_ms``, ``first_call_ms``); for drjit that process has
 an empty Dr.Jit kernel cache, for torch-compiled an empty Inductor cache (``first_call_cold``), as
 bench_render.py's cold probe. Frozen rows
@@ -59,7 +59,9 @@ CASES = {
 BACKENDS = {"torch": ("torch", {}), "torch-compiled": ("torch", {"compile": True}),
             "drjit": ("drjit", {"freeze": False}), "drjit-frozen": ("drjit", {"freeze": True})}
 DISTS = ("logistic", "cauchy")
-REPEATS = {"logistic": 10, "cauchy": 3}  # cauchy steps take seconds
+#: timed steps per (case, distribution): cauchy steps take seconds; a pose step a few ms, where 10
+#: steps gave medians ±20 % apart on this machine (60 take a quarter of a second)
+REPEATS = {("shape", "logistic"): 10, ("shape", "cauchy"): 3, ("pose", "logistic"): 60, ("pose", "cauchy"): 10}
 
 
 def loadavg():
@@ -111,7 +113,7 @@ def main(argv=None):
     ap.add_argument("--case", choices=sorted(CASES), action="append", help="default: all")
     ap.add_argument("--backend", choices=list(BACKENDS), action="append", help="default: all")
     ap.add_argument("--dist", choices=DISTS, action="append", help="default: all")
-    ap.add_argument("--repeats", type=int, help="timed steps per case (default 10, cauchy 3; --quick: 1)")
+    ap.add_argument("--repeats", type=int, help="timed steps per case (default: shape 10, cauchy 3; pose 60, cauchy 10; --quick: 1)")
     ap.add_argument("--quick", action="store_true", help="1 timed step per case")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--out", type=Path, help="write the JSON here (also printed)")
@@ -123,7 +125,7 @@ def main(argv=None):
     result = {"command": " ".join(sys.argv), "machine": machine(), "versions": versions(),
               "loadavg_before": loadavg(), "results": []}
     for case, dist, backend in itertools.product(a.case or CASES, a.dist or DISTS, a.backend or BACKENDS):
-        repeats = a.repeats or (1 if a.quick else REPEATS[dist])
+        repeats = a.repeats or (1 if a.quick else REPEATS[case, dist])
         result["results"].append(run_case(case, backend, dist, repeats, a.threads))
     result["loadavg_after"] = loadavg()
     emit(result, a.out)
