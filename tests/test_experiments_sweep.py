@@ -4,7 +4,7 @@ import json
 import pytest
 
 from gendr_experiments.common import source_hash
-from gendr_experiments.sweep import (OtherCodeError, ResultStore, best_setting_search, execute, expand, fine_grid,
+from gendr_experiments.sweep import (OtherCodeError, best_setting_search, execute, expand, fine_grid,
                                      load_rows, run_config, summarize_best, verify_rows, write_csv)
 
 # a tiny shape problem: ~0.1 s per run
