@@ -275,7 +275,7 @@ class _Rodrigues(torch.autograd.Function):
     def forward(ctx, w):
         x, y, z = w.detach().reshape(3).tolist()
         t2 = x * x + y * y + z * z
-        if t2 < 0.0025:   # θ < 0.05: Taylor series (to θ⁸; the closed forms cancel near 0)
+        if t2 < 0.0025:   # θ < 0.05: Taylor series (a, h to θ⁸, da, dh to θ⁶; the closed forms cancel near 0)
             a = 1.0 - t2 / 6 * (1.0 - t2 / 20 * (1.0 - t2 / 42 * (1.0 - t2 / 72)))       # sin θ / θ
             h = 0.5 * (1.0 - t2 / 12 * (1.0 - t2 / 30 * (1.0 - t2 / 56 * (1.0 - t2 / 90))))  # (1 − cos θ)/θ²
             da = -1 / 3 + t2 * (1 / 30 + t2 * (-1 / 840 + t2 / 45360))              # a'(θ)/θ
