@@ -322,3 +322,41 @@ def test_custom_backward_zero_gradient_where_the_generator_derivative_overflows(
     for k, g in res[0][1].items():
         assert bool(g.isfinite().all()), k
         assert float((g - res[1][1][k]).abs().max()) <= 1e-9 * max(1.0, float(res[1][1][k].abs().max())), k
+
+
+@pytest.mark.parametrize("layout", ["face-major", "face-major 2 chunks", "face-major row chunks"])
+@pytest.mark.parametrize("dist,blend,eye,double", [("heaviside", None, (0.1, 0.05, 3.0), False),
+                                                   ("heaviside", None, (0.0, 0.0, 2.1), True),   # near 0.95: clipped, K = 4
+                                                   ("logistic", None, (0.3, -0.2, 2.5), False),
+                                                   # covers beyond the face (F(x) >= 1/2 from x ~ -2.7): the box margin
+                                                   (("gamma", 3.0), None, (0.3, -0.2, 2.5), False),
+                                                   ("heaviside", "hard", (0.1, 0.05, 3.0), False)])
+def test_hard_or_face_major_equals_pixel_major(monkeypatch, layout, dist, blend, eye, double):
+    """The hard "or" walks each face's box (alpha_or_faces) up to FACE_MAJOR_RADIUS_PX of culling
+    radius: the same image, bit for bit, as the pixel-major loop over the tiles' face lists; without
+    an RGB blend it builds no bins."""
+    rng = np.random.default_rng(3)
+    mesh = icosphere(2)
+    verts = mesh.vertices * (1.0 + 0.3 * rng.standard_normal((len(mesh.vertices), 1)))  # uneven face sizes
+    chunks = {"face-major": 1, "face-major 2 chunks": 2, "face-major row chunks": 1 << 20}[layout]
+    monkeypatch.setattr(R, "FACE_LANES", chunks * len(mesh.faces))
+    calls = []
+    for name in ("alpha_or_faces", "Bins"):
+        orig = getattr(R, name)
+        monkeypatch.setattr(R, name, lambda *a, _o=orig, _n=name, **k: calls.append(_n) or _o(*a, **k))
+    soft = dist != "heaviside"
+    if isinstance(dist, tuple):
+        dist = gendr.distribution(dist[0], shape=dist[1], reversed=True)
+    imgs = []
+    for radius_px in (math.inf, -1.0):
+        monkeypatch.setattr(R, "FACE_MAJOR_RADIUS_PX", radius_px)
+        r = gendr.Renderer(dist, "or", tau=0.02 if soft else 1.0, image_size=(37, 45), eps=1e-4 if soft else 0.0,
+                           blend=blend, backend="drjit", device="llvm")
+        from drjit.llvm.ad import TensorXf, TensorXf64
+        Ten, dt = (TensorXf64, np.float64) if double else (TensorXf, np.float32)
+        cam = gendr.PerspectiveCamera(eye=Ten(np.asarray(eye, dt)), fov_y=60.0, near=0.95 if eye[2] < 2.2 else 0.3)
+        imgs.append(r.render(Ten(verts.astype(dt)), mesh.faces, cam).numpy())
+    assert calls == (["alpha_or_faces"] if blend is None else ["Bins", "alpha_or_faces"]) + ["Bins"]
+    cover = imgs[0][..., 3]
+    assert set(np.unique(cover)) == {0.0, 1.0} and 0.05 < cover.mean() < 0.95
+    assert np.array_equal(imgs[0], imgs[1])

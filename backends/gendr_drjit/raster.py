@@ -32,7 +32,7 @@ import numpy as np
 import drjit as dr
 
 from gendr.renderer import LAMBERT_KINK_ULPS
-from gendr.tconorms import MAX, MEAN
+from gendr.tconorms import HARD_OR, MAX, MEAN
 
 #: tile edges tried in order (see tile_size); TILE != 0 forces one
 TILES = (4, 8, 16, 32)
@@ -498,6 +498,36 @@ class Pixels:
         return out
 
 
+class FaceLanes:
+    """Lanes of the face-major loops: one per (face, chunk) of the B·F faces (``m``). A lane walks the
+    pixels of its face's screen box grown by the culling radius (every pixel within the radius lies
+    in it), chunk c of C taking the box rows c, c + C, ... (C: enough lanes for every thread when
+    the faces are few or large). Its start (i, j0), row end j1, last row i1 (−1: nothing to walk)
+    and ``base``, the face's first pixel in the row-major image [B·H·W]. ``schedule``: arrays to
+    evaluate in the kernel that computes the boxes (the gathers here evaluate their sources)."""
+
+    def __init__(self, fc, T, H, W, schedule=()):
+        Int32 = T.Int32
+        self.m = m = dr.width(fc.Xd[0])
+        self.C = C = max(1, min(H, -(-FACE_LANES // m)))
+        r = (2.0 * BIN_MARGIN / H - fc.cull_lo) if fc.cull_lo is not None else math.inf
+        box = pixel_box(fc, H, W, r)
+        dr.schedule(*schedule, *(box if C > 1 else ()))
+        lane = dr.arange(T.UInt32, m * C)
+        self.f = f = lane // C if C > 1 else lane
+        j0, j1, i0, i1, ok = (dr.gather(type(a), a, f) for a in box) if C > 1 else box
+        self.j0, self.j1 = Int32(dr.select(ok, j0, 0.0)), Int32(dr.select(ok, j1, -1.0))
+        self.i1 = Int32(dr.select(ok, i1, -1.0))
+        self.i = Int32(dr.select(ok, i0, 0.0)) + Int32(lane % C)
+        self.base = (f // fc.F) * (H * W)
+
+    def next_pixel(self, i, j):
+        """The lane's next pixel (i, j) after (i, j): along the row, then C rows down."""
+        j = j + 1
+        wrap = j > self.j1
+        return dr.select(wrap, i + self.C, i), dr.select(wrap, self.j0, j)
+
+
 # ---------------------------------------------------------------------------------------------
 # per-pair evaluation (inside the loops)
 # ---------------------------------------------------------------------------------------------
@@ -864,38 +894,25 @@ class AlphaSum(dr.CustomOp):
         gX, gY once per face. No scatter per pair. Visits the same live pairs as the pixel-major
         loop (a pixel outside the box is beyond the radius); only the order of the sums differs."""
         s, fc, T, ops, pix = self.ctx.parts
-        dist, K, Float, Int32 = s.distribution, fc.K, T.Float, T.Int32
+        dist, K, Float = s.distribution, fc.K, T.Float
         H, W = pix.H, pix.W
-        m = dr.width(fc.Xd[0])
-        C = max(1, min(H, -(-FACE_LANES // m)))  # enough lanes for every thread (few or large faces)
-        r = (2.0 * BIN_MARGIN / H - fc.cull_lo) if fc.cull_lo is not None else math.inf
-        box = pixel_box(fc, H, W, r)
-        # the gathers below evaluate their sources: scheduled together, one kernel for all
-        dr.schedule(*delta, *(box if C > 1 else ()))
+        fl = FaceLanes(fc, T, H, W, delta)
+        m, C = fl.m, fl.C
         delta_img = pix.to_image(list(delta))
-        lane = dr.arange(T.UInt32, m * C)
-        f = lane // C if C > 1 else lane
-        j0, j1, i0, i1, ok = (dr.gather(type(a), a, f) for a in box) if C > 1 else box
-        j0, j1 = Int32(dr.select(ok, j0, 0.0)), Int32(dr.select(ok, j1, -1.0))
-        i1 = Int32(dr.select(ok, i1, -1.0))
-        i = Int32(dr.select(ok, i0, 0.0)) + Int32(lane % C)
-        base = (f // fc.F) * (H * W)
-        face_edges = _face_edges(fc, T, f)
+        face_edges = _face_edges(fc, T, fl.f)
 
         def body(i, j, gt, gp, gk, *acc):
             px, py = pixel_x(Float, j, H, W), pixel_y(Float, i, H)
             d, (kk, tt, ux, uy) = _strip_pixel(T, _column_edges(face_edges, px), py, True)
             x = dist.argument(ops, d, tau)
             live = live_pairs(x, x_eps, x_cut)
-            dl = dr.gather(Float, delta_img, base + T.UInt32(i * W + j), True if live is None else live)
+            dl = dr.gather(Float, delta_img, fl.base + T.UInt32(i * W + j), True if live is None else live)
             gt, gp, gk, *acc = dr.if_stmt((d, x, kk, tt, ux, uy, dl, gt, gp, gk, *acc), dl != 0.0, pair,
                                           lambda *a: a[7:])
-            j = j + 1
-            wrap = j > j1
-            return (dr.select(wrap, i + C, i), dr.select(wrap, j0, j), gt, gp, gk, *acc)
+            return (*fl.next_pixel(i, j), gt, gp, gk, *acc)
 
         zeros = [dr.zeros(Float, m * C) for _ in range(3 + (2 * K if want_xy else 0))]
-        out = dr.while_loop((i, j0, *zeros), lambda i, j, *a: i <= i1, body,
+        out = dr.while_loop((fl.i, fl.j0, *zeros), lambda i, j, *a: i <= fl.i1, body,
                             labels=("i", "j", "gt", "gp", "gk") + tuple(f"c{k}" for k in range(len(zeros) - 3)))
         gt, gp, gk, acc = out[2], out[3], out[4], list(out[5:])
         dr.eval(gt, gp, gk, acc)  # one loop kernel for all outputs (each use below would launch its own)
@@ -1045,6 +1062,31 @@ def alpha_max(s, fc, T, ops, pix, tau, resid=None):
     return dr.select(has, coverage(s, ops, d, tau, x_cut), 0.0)
 
 
+def alpha_or_faces(s, fc, T, ops, H, W, tau):
+    """The hard "or" (0/1: some face covers with p >= 1/2), face-major (:class:`FaceLanes`): each
+    lane walks its face's box and writes 1 where the face covers, as a row-major image [B·H·W]. The
+    same pairs and the same test as :func:`alpha_max`'s "or" (every pixel with p >= eps lies in the
+    box), without binning; for narrow culling radii (:func:`face_major_backward`), where a box is a
+    few pixels and the pixel-major loop would walk every face its tile lists."""
+    Float = T.Float
+    tau_d = dr.detach(tau)
+    x_cut = s.cutoff_argument(ops, tau_d)
+    fl = FaceLanes(fc, T, H, W)
+    face_edges = _face_edges(fc, T, fl.f)
+    A = dr.zeros(Float, fc.B * H * W)
+
+    def body(i, j):
+        px, py = pixel_x(Float, j, H, W), pixel_y(Float, i, H)
+        d, _ = _strip_pixel(T, _column_edges(face_edges, px), py, False)
+        covers = coverage(s, ops, d, tau_d, x_cut) >= 0.5
+        dr.scatter(A, Float(1.0), fl.base + T.UInt32(i * W + j), covers)  # (equal values: any order)
+        return fl.next_pixel(i, j)
+
+    with dr.suspend_grad():
+        dr.while_loop((fl.i, fl.j0), lambda i, j: i <= fl.i1, body, labels=("i", "j"))
+    return A
+
+
 def nearest_face(fc, T, pix, cull):
     """Per lane (one pixel each): the nearest face whose interior holds the pixel centre (front
     faces only with ``cull``) and whether there is one: ``(face, has)``, face 0 where none. No AD:
@@ -1157,16 +1199,22 @@ def render_parts(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, colors
         cull_r = dr.opaque(T.Float, radius, 1) if math.isfinite(radius) else None
     fc.cull_lo = -cull_r if cull_r is not None else None
     fc.face_major = face_major_backward(radius, H)
+    fc.resid = None
+    hard_or = settings.tconorm.kind == HARD_OR
+    if hard_or and fc.face_major and settings.blend is None:  # no pixel lanes needed: no binning
+        A = alpha_or_faces(settings, fc, T, ops, H, W, tau)
+        return _rgba(T, fc.B, H, W, A, None, None), fc.B, fc
     bins = Bins(fc, H, W, cull_r if cull_r is not None else math.inf, T, radius)
     strip = min(WIDE_STRIP if wide_layout(radius) else STRIP, bins.tile)
     # a packet of strip lanes that spans tiles loops for its longest list: order the tiles (a packet
     # is 8 or 16 lanes on the CPU, a CUDA warp 32; one pixel per lane fills it from one 4×4 tile)
     order = tile_order(T, bins) if settings.tconorm.streams and bins.tile ** 2 // strip < 32 else None
     pix1 = Pixels(T, fc.B, H, W, bins, order=order)  # one pixel per lane: max, "or", the RGB blends
-    fc.resid = None
     if settings.tconorm.streams:  # archimedean T-conorms and the mean
         strips = Pixels(T, fc.B, H, W, bins, rows=strip, order=order)
         A = alpha_archimedean(settings, fc, T, ops, strips, pix1, tau, resid)
+    elif hard_or and fc.face_major:
+        A = alpha_or_faces(settings, fc, T, ops, H, W, tau)
     else:
         A = pix1.to_image(alpha_max(settings, fc, T, ops, pix1, tau, resid))
     if settings.blend is None:
@@ -1175,13 +1223,19 @@ def render_parts(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, colors
         rgb = rgb_hard(settings, fc, T, ops, pix1)
     else:
         rgb = rgb_softmax(settings, fc, T, ops, pix1, tau)
-    lane = dr.arange(T.UInt32, 4 * fc.B * H * W)
+    return _rgba(T, fc.B, H, W, A, rgb, pix1), fc.B, fc
+
+
+def _rgba(T, B, H, W, A, rgb, pix1):
+    """The flat RGBA image [B·H·W·4] of alpha A (row-major) and the per-lane colours ``rgb`` of
+    ``pix1`` (None: RGB 0)."""
+    lane = dr.arange(T.UInt32, 4 * B * H * W)
     p, ch = lane // 4, lane % 4
     out = dr.select(ch == 3, dr.gather(T.Float, A, p), 0.0)
     if rgb is not None:
         for c in range(3):
             out = dr.select(ch == c, dr.gather(T.Float, pix1.to_image(rgb[c]), p), out)
-    return out, fc.B, fc
+    return out
 
 
 # ---------------------------------------------------------------------------------------------
