@@ -1229,6 +1229,10 @@ def render_parts(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, colors
 def _rgba(T, B, H, W, A, rgb, pix1):
     """The flat RGBA image [B·H·W·4] of alpha A (row-major) and the per-lane colours ``rgb`` of
     ``pix1`` (None: RGB 0)."""
+    if rgb is None:  # alpha into channel 3 of zeros: a pass over the pixels, not over the channels
+        out = dr.zeros(T.Float, 4 * B * H * W)
+        dr.scatter(out, A, dr.arange(T.UInt32, B * H * W) * 4 + 3)
+        return out
     lane = dr.arange(T.UInt32, 4 * B * H * W)
     p, ch = lane // 4, lane % 4
     out = dr.select(ch == 3, dr.gather(T.Float, A, p), 0.0)
