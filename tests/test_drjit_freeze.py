@@ -360,3 +360,25 @@ def test_hard_or_face_major_equals_pixel_major(monkeypatch, layout, dist, blend,
     cover = imgs[0][..., 3]
     assert set(np.unique(cover)) == {0.0, 1.0} and 0.05 < cover.mean() < 0.95
     assert np.array_equal(imgs[0], imgs[1])
+
+
+@pytest.mark.parametrize("tcn,blend", [("probabilistic", None), ("max", None), ("probabilistic", "softmax")])
+def test_backward_replay_reuses_the_forward_bins(monkeypatch, tcn, blend):
+    """The frozen forward returns the tiles' face masks (and order) with its residuals: the backward
+    recording builds no bins of its own (the binning loop ran twice per step before), and the
+    result equals the unfrozen render."""
+    built = []
+    orig = R.Bins.__init__
+
+    def spy(self, *a, mask=None, **k):
+        built.append("reused" if mask is not None else "binned")
+        orig(self, *a, mask=mask, **k)
+
+    monkeypatch.setattr(R.Bins, "__init__", spy)
+    r = gendr.Renderer("logistic", tcn, tau=0.05, image_size=(24, 20), eps=1e-4, blend=blend, backend="drjit",
+                       device="llvm", freeze=True)
+    a = _fwd_bwd(r, MESH.vertices)
+    assert built == ["binned", "reused"]
+    monkeypatch.setattr(R.Bins, "__init__", orig)
+    _close(a, _fwd_bwd(gendr.Renderer("logistic", tcn, tau=0.05, image_size=(24, 20), eps=1e-4, blend=blend,
+                                      backend="drjit", device="llvm"), MESH.vertices))

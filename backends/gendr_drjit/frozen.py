@@ -22,8 +22,9 @@ function (no AD), its backward a second frozen function that re-creates the inpu
 renders, back-propagates the incoming image gradient *inside* the recording and returns the
 input gradients. Both replay without tracing; the caller's AD graph (vertices -> ..., τ, camera
 parameters) is unaffected. The forward replay returns residuals — the per-pixel generator sums S
-(and the saturation counts) of the archimedean T-conorms, the arg-max faces of max — so the
-backward replay does not re-run the forward loop (the RGB blends recompute theirs there).
+(and the saturation counts) of the archimedean T-conorms, the arg-max faces of max, and the tiles'
+face masks and order — so the backward replay re-runs neither the forward loop nor the binning
+(the RGB blends recompute their loops there).
 """
 from __future__ import annotations
 

@@ -356,13 +356,17 @@ class Bins:
     only on (B, H, W, F): no data-dependent host work, nothing read back. Iterating a mask visits
     the faces in ascending order (as the former host lists did), so sums are deterministic."""
 
-    def __init__(self, fc, H, W, cull_r, T, radius=0.0):
+    def __init__(self, fc, H, W, cull_r, T, radius=0.0, mask=None):
         F, B = fc.F, fc.B
         self.tile = TILE if TILE else tile_size(B, H, W, F, radius)  # radius: a Python float (layout only)
         t = self.tile
         self.ntx, self.nty = -(-W // t), -(-H // t)
         self.nw = nw = -(-F // 32)
         self.F = F
+        self.mask_tiles = B * self.ntx * self.nty
+        if mask is not None:  # the masks of an earlier pass over the same faces (frozen backward replays)
+            self.mask = mask
+            return
         Float, Int32, UInt32 = T.Float, T.Int32, T.UInt32
         m = B * F
         r = cull_r + 2.0 * BIN_MARGIN / H  # cull_r: the same (opaque) radius the pair loop culls with
@@ -399,7 +403,6 @@ class Bins:
         with dr.suspend_grad():
             dr.while_loop((dr.zeros(UInt32, m),), lambda k: k < count, body, labels=("k",))
         self.mask = mask
-        self.mask_tiles = B * self.ntx * self.nty
 
 
 def tile_order(T, bins):
@@ -1204,19 +1207,26 @@ def render_parts(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, colors
     if hard_or and fc.face_major and settings.blend is None:  # no pixel lanes needed: no binning
         A = alpha_or_faces(settings, fc, T, ops, H, W, tau)
         return _rgba(T, fc.B, H, W, A, None, None), fc.B, fc
-    bins = Bins(fc, H, W, cull_r if cull_r is not None else math.inf, T, radius)
+    # resid = (the loop's residuals, (mask, tile order...)) of a forward pass of the same inputs
+    loop_resid, bin_resid = (None, None) if resid is None else resid
+    bins = Bins(fc, H, W, cull_r if cull_r is not None else math.inf, T, radius,
+                mask=None if bin_resid is None else bin_resid[0])
     strip = min(WIDE_STRIP if wide_layout(radius) else STRIP, bins.tile)
     # a packet of strip lanes that spans tiles loops for its longest list: order the tiles (a packet
     # is 8 or 16 lanes on the CPU, a CUDA warp 32; one pixel per lane fills it from one 4×4 tile)
-    order = tile_order(T, bins) if settings.tconorm.streams and bins.tile ** 2 // strip < 32 else None
+    order = None
+    if settings.tconorm.streams and bins.tile ** 2 // strip < 32:
+        order = tile_order(T, bins) if bin_resid is None else bin_resid[1:]
     pix1 = Pixels(T, fc.B, H, W, bins, order=order)  # one pixel per lane: max, "or", the RGB blends
     if settings.tconorm.streams:  # archimedean T-conorms and the mean
         strips = Pixels(T, fc.B, H, W, bins, rows=strip, order=order)
-        A = alpha_archimedean(settings, fc, T, ops, strips, pix1, tau, resid)
+        A = alpha_archimedean(settings, fc, T, ops, strips, pix1, tau, loop_resid)
     elif hard_or and fc.face_major:
         A = alpha_or_faces(settings, fc, T, ops, H, W, tau)
     else:
-        A = pix1.to_image(alpha_max(settings, fc, T, ops, pix1, tau, resid))
+        A = pix1.to_image(alpha_max(settings, fc, T, ops, pix1, tau, loop_resid))
+    # the frozen forward returns these, and its backward replay skips the binning
+    fc.resid = (fc.resid, (bins.mask, *(order or ())))
     if settings.blend is None:
         rgb = None
     elif settings.blend == "hard":
