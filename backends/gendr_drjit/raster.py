@@ -1203,8 +1203,8 @@ def render_parts(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, colors
     fc.cull_lo = -cull_r if cull_r is not None else None
     fc.face_major = face_major_backward(radius, H)
     fc.resid = None
-    hard_or = settings.tconorm.kind == HARD_OR
-    if hard_or and fc.face_major and settings.blend is None:  # no pixel lanes needed: no binning
+    or_faces = settings.tconorm.kind == HARD_OR and fc.face_major  # the hard "or", face-major
+    if or_faces and settings.blend is None:  # no pixel lanes needed: no binning
         A = alpha_or_faces(settings, fc, T, ops, H, W, tau)
         return _rgba(T, fc.B, H, W, A, None, None), fc.B, fc
     # resid = (the loop's residuals, (mask, tile order...)) of a forward pass of the same inputs
@@ -1221,7 +1221,7 @@ def render_parts(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, colors
     if settings.tconorm.streams:  # archimedean T-conorms and the mean
         strips = Pixels(T, fc.B, H, W, bins, rows=strip, order=order)
         A = alpha_archimedean(settings, fc, T, ops, strips, pix1, tau, loop_resid)
-    elif hard_or and fc.face_major:
+    elif or_faces:
         A = alpha_or_faces(settings, fc, T, ops, H, W, tau)
     else:
         A = pix1.to_image(alpha_max(settings, fc, T, ops, pix1, tau, loop_resid))
@@ -1246,9 +1246,8 @@ def _rgba(T, B, H, W, A, rgb, pix1):
     lane = dr.arange(T.UInt32, 4 * B * H * W)
     p, ch = lane // 4, lane % 4
     out = dr.select(ch == 3, dr.gather(T.Float, A, p), 0.0)
-    if rgb is not None:
-        for c in range(3):
-            out = dr.select(ch == c, dr.gather(T.Float, pix1.to_image(rgb[c]), p), out)
+    for c in range(3):
+        out = dr.select(ch == c, dr.gather(T.Float, pix1.to_image(rgb[c]), p), out)
     return out
 
 
