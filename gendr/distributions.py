@@ -43,11 +43,18 @@ class DistributionFamily:
     params: tuple[Param, ...] = ()
     log_sf: Callable | None = None
     log_cdf: Callable | None = None
+    #: optional ``cdf_and_logs(ops, x, **params)`` = ``(F, log(1 − F), log F)`` from shared work (one
+    #: evaluation where the three functions would each repeat it); requires ``accurate_logs``
+    cdf_and_logs: Callable | None = None
     #: log_sf and log_cdf keep their relative accuracy on the whole line, also where F (or 1 − F) is
     #: tiny, so the renderer's log(1 − F) needs no log1p(−F) branch (tested against scipy/mpmath)
     accurate_logs: bool = False
     differentiable: bool = True
     doc: str = ""
+
+    def __post_init__(self):
+        if self.cdf_and_logs is not None and not self.accurate_logs:
+            raise ValueError(f"distribution family {self.name!r}: cdf_and_logs requires accurate_logs")
 
 
 DISTRIBUTIONS = Registry("distribution")
@@ -137,6 +144,14 @@ class Distribution(LearnableParams):
         (−log(1 − p))^0.25, turn into large absolute errors. A backend that uses only the log (e.g.
         for the probabilistic generator −log(1 − p)) then never evaluates F of an accurate family.
         """
+        f = self.family
+        if f.cdf_and_logs is not None:
+            xs = x + self.shift if self.shift else x
+            if self.reversed:  # F_rev(x) = 1 − F(−x): (exp log(1 − F(−x)), log F(−x))
+                _, log_sf, log_cdf = f.cdf_and_logs(ops, -xs, **self.kwargs)
+                return ops.exp(log_sf), log_cdf
+            F, log_sf, _ = f.cdf_and_logs(ops, xs, **self.kwargs)
+            return F, log_sf
         F = self.cdf(ops, x)
         return F, self._log_sf(ops, x, F)
 
@@ -448,14 +463,14 @@ def _gaussian_pdf(ops, x):
 
 def _gaussian_log_sf(ops, x):
     tail = x > _GAUSS_TAIL_X
-    xt = ops.where(tail, x, _GAUSS_TAIL_X)
-    # Q(x) = φ(x) / (x + 1/(x + 2/(x + 3/(x + ...))))
-    t = xt
-    for k in range(_GAUSS_CF_DEPTH, 0, -1):
-        t = xt + float(k) / t
-    log_tail = -0.5 * xt * xt - _HALF_LOG_2PI - ops.log(t)
-    xm = ops.where(tail, 0.0, x)
-    return ops.where(tail, log_tail, ops.log(0.5 * ops.erfc(xm * _INV_SQRT_2)))
+
+    def log_tail(x):  # Q(x) = φ(x) / (x + 1/(x + 2/(x + 3/(x + ...))))
+        xt = ops.where(tail, x, _GAUSS_TAIL_X)
+        t = xt
+        for k in range(_GAUSS_CF_DEPTH, 0, -1):
+            t = xt + float(k) / t
+        return -0.5 * xt * xt - _HALF_LOG_2PI - ops.log(t)
+    return ops.branch(tail, log_tail, lambda x: ops.log(0.5 * ops.erfc(ops.where(tail, 0.0, x) * _INV_SQRT_2)), x)
 
 
 DISTRIBUTIONS.add(DistributionFamily(
@@ -729,44 +744,49 @@ def _log_ratio(ops, x, k):
 
 
 def _gamma_parts(ops, x, k, shape_derivatives=False):
-    """Both approximations of the incomplete gamma function at x > 0 (finite elsewhere, unused).
+    """The incomplete gamma function at x > 0 (finite elsewhere, unused) by the approximation of
+    x's range: the series where ``use_series`` (x < k + _GAMMA_SWITCH), else the fraction (a
+    branch: Dr.Jit's packets skip the one none of their lanes takes).
 
-    Returns ``(use_series, log_p, log_q, xs, total, xc, t)``: the selection, log P(k, x) and
-    log Q(k, x), and the series / continued fraction quantities the derivatives reuse. With
-    ``shape_derivatives``, also ``(dtotal, dt)``: ∂Σ/∂k and ∂t/∂k of the same truncated series
+    Returns ``(use_series, log_p, log_q, a, b)``: the selection, log P(k, x), log Q(k, x) and what
+    the derivatives reuse: (xs, Σ) of the series in its lanes, (xc, t) of the fraction in the
+    others. With ``shape_derivatives``, also ``db``: ∂Σ/∂k or ∂t/∂k of the same truncated series
     and fraction, differentiated term by term in the same loops (see _gamma_shape_derivatives).
     """
     sw = k + _GAMMA_SWITCH
     use_series = x < sw
     # log of x^k e^(−x) / Γ(k+1), as k·log(x/k) − (x − k) − c with c a float64 constant
     c = math.lgamma(k + 1.0) - k * math.log(k) + k
-    # series: P = x^k e^(−x) / Γ(k+1) · Σ_n x^n / ((k+1)...(k+n)),  n < _GAMMA_SERIES_TERMS
-    xs = ops.where(x > 0.0, ops.where(use_series, x, sw), 1.0)
-    term = ops.full_like(xs, 1.0)
-    total = term
-    # ∂term_n/∂k = −term_n Σ_{j≤n} 1/(k+j) (only when asked: this is the renderer's hot loop)
-    dtotal, harmonic = (ops.full_like(xs, 0.0), 0.0) if shape_derivatives else (None, None)
-    for n in range(1, _GAMMA_SERIES_TERMS):
-        term = term * xs / (k + n)
-        total = total + term
-        if shape_derivatives:
-            harmonic += 1.0 / (k + n)
-            dtotal = dtotal - term * harmonic
-    log_p_series = k * _log_ratio(ops, xs, k) - (xs - k) - c + ops.log(total)
-    # Legendre's continued fraction, evaluated bottom-up from depth _GAMMA_CF_DEPTH:
-    # Q = x^k e^(−x) / Γ(k) / t,  t = x+1−k − 1(1−k)/(x+3−k − 2(2−k)/(x+5−k − ...))
-    xc = ops.where(use_series, sw, x)
-    t = xc + (2.0 * _GAMMA_CF_DEPTH + 1.0 - k)
-    dt = ops.full_like(xc, -1.0) if shape_derivatives else None
-    for n in range(_GAMMA_CF_DEPTH, 0, -1):
-        if shape_derivatives:  # of t_n = x + 2n − 1 − k − n(n − k)/t_{n+1}
-            dt = -1.0 + n / t + (n * (n - k)) * dt / (t * t)
-        t = xc + (2.0 * n - 1.0 - k) - (n * (n - k)) / t
-    log_q_cf = k * _log_ratio(ops, xc, k) - (xc - k) - (c - math.log(k)) - ops.log(t)
-    log_p = ops.where(use_series, log_p_series, ops.log1p(-ops.exp(log_q_cf)))
-    log_q = ops.where(use_series, ops.log1p(-ops.exp(log_p_series)), log_q_cf)
-    parts = (use_series, log_p, log_q, xs, total, xc, t)
-    return parts + (dtotal, dt) if shape_derivatives else parts
+
+    def series(x):  # P = x^k e^(−x) / Γ(k+1) · Σ_n x^n / ((k+1)...(k+n)),  n < _GAMMA_SERIES_TERMS
+        xs = ops.where(x > 0.0, ops.where(use_series, x, sw), 1.0)
+        term = ops.full_like(xs, 1.0)
+        total = term
+        # ∂term_n/∂k = −term_n Σ_{j≤n} 1/(k+j) (only when asked: this is the renderer's hot loop)
+        dtotal, harmonic = (ops.full_like(xs, 0.0), 0.0) if shape_derivatives else (None, None)
+        for n in range(1, _GAMMA_SERIES_TERMS):
+            term = term * xs / (k + n)
+            total = total + term
+            if shape_derivatives:
+                harmonic += 1.0 / (k + n)
+                dtotal = dtotal - term * harmonic
+        log_p = k * _log_ratio(ops, xs, k) - (xs - k) - c + ops.log(total)
+        parts = (log_p, ops.log1p(-ops.exp(log_p)), xs, total)
+        return parts + (dtotal,) if shape_derivatives else parts
+
+    def fraction(x):  # Legendre's, bottom-up from depth _GAMMA_CF_DEPTH:
+        # Q = x^k e^(−x) / Γ(k) / t,  t = x+1−k − 1(1−k)/(x+3−k − 2(2−k)/(x+5−k − ...))
+        xc = ops.where(use_series, sw, x)
+        t = xc + (2.0 * _GAMMA_CF_DEPTH + 1.0 - k)
+        dt = ops.full_like(xc, -1.0) if shape_derivatives else None
+        for n in range(_GAMMA_CF_DEPTH, 0, -1):
+            if shape_derivatives:  # of t_n = x + 2n − 1 − k − n(n − k)/t_{n+1}
+                dt = -1.0 + n / t + (n * (n - k)) * dt / (t * t)
+            t = xc + (2.0 * n - 1.0 - k) - (n * (n - k)) / t
+        log_q = k * _log_ratio(ops, xc, k) - (xc - k) - (c - math.log(k)) - ops.log(t)
+        parts = (ops.log1p(-ops.exp(log_q)), log_q, xc, t)
+        return parts + (dt,) if shape_derivatives else parts
+    return (use_series, *ops.branch(use_series, series, fraction, x))
 
 
 def _gamma_log_pdf(ops, x, k):
@@ -800,9 +820,9 @@ def _gamma_shape_derivatives(ops, x, k):
     fraction: log Q = k log x − x − log Γ(k) − log t, with ∂t/∂k from the recurrence of t.
     The other function follows from P + Q = 1 (∂ log P/∂k = −(Q/P) ∂ log Q/∂k)."""
     x = ops.detach(x)
-    use_series, log_p, log_q, xs, total, xc, t, dtotal, dt = _gamma_parts(ops, x, k, shape_derivatives=True)
-    dlog_p_series = ops.log(xs) - _digamma(k + 1.0) + dtotal / total
-    dlog_q_cf = ops.log(xc) - _digamma(k) - dt / t
+    use_series, log_p, log_q, a, b, db = _gamma_parts(ops, x, k, shape_derivatives=True)
+    dlog_p_series = ops.log(a) - _digamma(k + 1.0) + db / b  # (series lanes: a = xs, b = Σ)
+    dlog_q_cf = ops.log(a) - _digamma(k) - db / b  # (fraction lanes: a = xc, b = t)
     dlog_p = ops.where(use_series, dlog_p_series, -ops.exp(log_q - log_p) * dlog_q_cf)
     dlog_q = ops.where(use_series, -ops.exp(log_p - log_q) * dlog_p_series, dlog_q_cf)
     pos = x > 0.0
@@ -820,62 +840,47 @@ def _with_shape_gradient(ops, value, k, derivative):
     return value + (ka - ops.detach(ka)) * ops.where(d - d == 0.0, d, 0.0)
 
 
-def _gamma_cdf(ops, x, shape):
+def _gamma_cdf_and_logs(ops, x, shape):
+    """``(F, log(1 − F), log F)`` of gamma(k) from one evaluation of the incomplete gamma function,
+    each with its exact derivative attached (f, −f/Q, f/P; never through the iterations) and, for a
+    learnable k, its ∂/∂k. The renderer's loops ask for two of them at once (cdf_and_log_sf)."""
     k = float(shape)  # (a Learnable is a float subclass; Dr.Jit takes only plain floats)
+    xd = ops.detach(x)
+    pos = xd > 0.0
+    use_series, log_p, log_q, a, b = _gamma_parts(ops, xd, k)
+    F = ops.where(pos, ops.where(use_series, ops.exp(log_p), -ops.expm1(log_q)), 0.0)
+    log_sf = ops.where(pos, log_q, 0.0)
+    log_cdf = ops.where(pos, log_p, -math.inf)
 
-    def value(x):
-        use_series, log_p, log_q = _gamma_parts(ops, x, k)[:3]
-        p = ops.where(use_series, ops.exp(log_p), -ops.expm1(log_q))
-        return ops.where(x > 0.0, p, 0.0)
+    def d_log_sf(_):  # d log Q/dx = −f/Q; in the fraction's lanes exactly −t/x (a = x, b = t)
+        return ops.where(pos, ops.where(use_series, -ops.exp(_gamma_log_pdf(ops, xd, k) - log_q), -b / a), 0.0)
 
-    def shape_derivative():  # ∂P/∂k = P ∂log P/∂k = −Q ∂log Q/∂k (the one that does not cancel)
-        use_series, dlog_p, dlog_q, log_p, log_q = _gamma_shape_derivatives(ops, x, k)
-        return ops.where(use_series, ops.exp(log_p) * dlog_p, -ops.exp(log_q) * dlog_q)
-    return _with_shape_gradient(ops, ops.with_derivative(value, lambda x: _gamma_pdf(ops, x, k), x),
-                                shape, shape_derivative)
+    def d_log_cdf(_):  # d log P/dx = f/P; in the series' lanes exactly k/(x·Σ) (a = x, b = Σ)
+        return ops.where(pos, ops.where(use_series, k / (a * b), ops.exp(_gamma_log_pdf(ops, xd, k) - log_p)), 0.0)
 
-
-def _gamma_log_sf(ops, x, shape):
-    k = float(shape)
-
-    def value(x):
-        return ops.where(x > 0.0, _gamma_parts(ops, x, k)[2], 0.0)
-
-    def derivative(x):
-        # d log Q/dx = −f/Q; in the fraction's range that is exactly −t/x (no over/underflow)
-        use_series, _, log_q, _, _, xc, t = _gamma_parts(ops, x, k)
-        d = ops.where(use_series, -ops.exp(_gamma_log_pdf(ops, x, k) - log_q), -t / xc)
-        return ops.where(x > 0.0, d, 0.0)
-    return _with_shape_gradient(ops, ops.with_derivative(value, derivative, x), shape,
-                                lambda: _gamma_shape_derivatives(ops, x, k)[2])
-
-
-def _gamma_log_cdf(ops, x, shape):
-    k = float(shape)
-
-    def value(x):
-        return ops.where(x > 0.0, _gamma_parts(ops, x, k)[1], -math.inf)
-
-    def derivative(x):
-        # d log P/dx = f/P; in the series' range that is exactly k/(x·Σ)
-        use_series, log_p, _, xs, total, _, _ = _gamma_parts(ops, x, k)
-        d = ops.where(use_series, k / (xs * total), ops.exp(_gamma_log_pdf(ops, x, k) - log_p))
-        return ops.where(x > 0.0, d, 0.0)
-    return _with_shape_gradient(ops, ops.with_derivative(value, derivative, x), shape,
-                                lambda: _gamma_shape_derivatives(ops, x, k)[1])
+    def dk_cdf():  # ∂P/∂k = P ∂log P/∂k = −Q ∂log Q/∂k (the one that does not cancel)
+        use, dlog_p, dlog_q, lp, lq = _gamma_shape_derivatives(ops, x, k)
+        return ops.where(use, ops.exp(lp) * dlog_p, -ops.exp(lq) * dlog_q)
+    return (_with_shape_gradient(ops, ops.with_derivative(lambda _: F, lambda _: _gamma_pdf(ops, xd, k), x),
+                                 shape, dk_cdf),
+            _with_shape_gradient(ops, ops.with_derivative(lambda _: log_sf, d_log_sf, x), shape,
+                                 lambda: _gamma_shape_derivatives(ops, x, k)[2]),
+            _with_shape_gradient(ops, ops.with_derivative(lambda _: log_cdf, d_log_cdf, x), shape,
+                                 lambda: _gamma_shape_derivatives(ops, x, k)[1]))
 
 
 DISTRIBUTIONS.add(DistributionFamily(
-    "gamma", _gamma_cdf, _gamma_pdf,
+    "gamma", lambda ops, x, shape: _gamma_cdf_and_logs(ops, x, shape)[0], _gamma_pdf,
     support=lambda shape: (0.0, math.inf), tails=(BOUNDED, EXPONENTIAL),
     params=(Param("shape", POSITIVE, doc="shape k > 0 (scale 1)"),),
-    log_sf=_gamma_log_sf, log_cdf=_gamma_log_cdf,
-    accurate_logs=True,
+    log_sf=lambda ops, x, shape: _gamma_cdf_and_logs(ops, x, shape)[1],
+    log_cdf=lambda ops, x, shape: _gamma_cdf_and_logs(ops, x, shape)[2],
+    cdf_and_logs=_gamma_cdf_and_logs, accurate_logs=True,
     doc="Gamma with shape k, scale 1: F(x) = P(k, x) (regularized lower incomplete gamma) for "
         "x > 0, 0 below; f(x) = x^(k−1) e^(−x) / Γ(k). P by its power series (32 terms) for "
-        "x < k + 1.5, else 1 − Q with Q by Legendre's continued fraction (depth 11), both always "
-        "evaluated and selected (no data-dependent branching); derivatives via with_derivative "
-        "(f, −f/Q, f/P), never through the iterations.",
+        "x < k + 1.5, else 1 − Q with Q by Legendre's continued fraction (depth 11), as a "
+        "branch (``ops.branch``); derivatives via with_derivative (f, −f/Q, f/P), never through "
+        "the iterations.",
 ))
 
 
@@ -902,7 +907,8 @@ def _levy_log_sf(ops, x):
     small = z < 1.0  # 1 − F = erf(z): log erf(z) for small z, log1p(−erfc z) for large z
     z_small = ops.where(small, z, 0.5)
     z_large = ops.where(small, 1.0, z)
-    val = ops.where(small, ops.log(ops.erf(z_small)), ops.log1p(-ops.erfc(z_large)))
+    val = ops.branch(small, lambda zs, zl: ops.log(ops.erf(zs)), lambda zs, zl: ops.log1p(-ops.erfc(zl)),
+                     z_small, z_large)
     return ops.where(pos, val, 0.0)
 
 
@@ -914,8 +920,8 @@ def _levy_log_cdf(ops, x):
     xs = ops.where(pos, ops.where(x > 1e-30, x, 1e-30), 1.0)
     w = ops.sqrt(1.0 / xs)  # z·√2
     near_one = w < 0.5 * math.sqrt(2.0)
-    val = ops.where(near_one, ops.log1p(-ops.erf(ops.where(near_one, w, 0.0) * math.sqrt(0.5))),
-                    _LN2 + _gaussian_log_sf(ops, ops.where(near_one, 1.0, w)))
+    val = ops.branch(near_one, lambda w: ops.log1p(-ops.erf(ops.where(near_one, w, 0.0) * math.sqrt(0.5))),
+                     lambda w: _LN2 + _gaussian_log_sf(ops, ops.where(near_one, 1.0, w)), w)
     return ops.where(pos, val, -math.inf)
 
 

@@ -13,6 +13,11 @@ Members every namespace provides (all elementwise, broadcasting like NumPy):
 ``softplus(x)``    ``log(1 + exp(x))`` without overflow
 ``sigmoid(x)``     ``1 / (1 + exp(-x))`` without overflow
 ``where(c, a, b)`` select; ``c`` is a boolean array; ``a``/``b`` arrays or Python floats
+``branch(c, if_true, if_false, *args)``  ``where(c, if_true(*args), if_false(*args))`` for two
+                   callables returning an array or a tuple of arrays (selected entry by entry); a
+                   backend may skip a callable where no entry needs it (Dr.Jit: a branch that SIMD
+                   packets jump over). Differentiable inputs must come in through ``args``: what a
+                   callable reads from its closure is a constant to Dr.Jit inside loop kernels
 ``minimum maximum`` elementwise
 ``clamp(x, lo, hi)`` elementwise, ``lo``/``hi`` Python floats or None
 ``full_like(x, v)`` an array shaped like ``x`` filled with the Python float ``v``
@@ -39,6 +44,14 @@ _lgamma = np.frompyfunc(math.lgamma, 1, 1)
 
 def _f64(fn):
     return lambda x: np.asarray(fn(np.asarray(x, dtype=np.float64)), dtype=np.float64)
+
+
+def select_both(where, c, if_true, if_false, args):
+    """``branch`` by evaluating both callables and selecting (NumPy, torch)."""
+    a, b = if_true(*args), if_false(*args)
+    if isinstance(a, tuple):
+        return tuple(where(c, u, v) for u, v in zip(a, b))
+    return where(c, a, b)
 
 
 class NumpyOps:
@@ -75,6 +88,10 @@ class NumpyOps:
     @staticmethod
     def where(c, a, b):
         return np.where(c, a, b)
+
+    @staticmethod
+    def branch(c, if_true, if_false, *args):
+        return select_both(np.where, c, if_true, if_false, args)
 
     @staticmethod
     def clamp(x, lo=None, hi=None):

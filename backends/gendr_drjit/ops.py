@@ -69,6 +69,24 @@ class DrJitOps:
             a = self.Float(a)
         return dr.select(c, a, b)
 
+    def branch(self, c, if_true, if_false, *args):
+        # a symbolic conditional: in a loop kernel, a SIMD packet (or GPU warp) none of whose lanes
+        # takes a side jumps over it; lanes get exactly what the select of both would give them.
+        # (AD follows only ``args`` into it, not the callables' closures.)
+        if not isinstance(c, dr.ArrayBase):
+            return if_true(*args) if c else if_false(*args)
+        many = []
+
+        def side(fn):
+            def run(*a):
+                r = fn(*a)
+                many.append(isinstance(r, tuple))
+                return tuple(self._f(v) for v in r) if many[-1] else (self._f(r),)
+            return run
+        args = tuple(self._f(a) for a in args)
+        out = dr.if_stmt(args, c, side(if_true), side(if_false), mode="symbolic")
+        return tuple(out) if many[0] else out[0]
+
     def clamp(self, x, lo=None, hi=None):
         # selects, not minimum/maximum: at x == lo (or hi) the gradient passes, as torch.clamp's does
         if lo is not None:
@@ -106,11 +124,14 @@ class DrJitOps:
         x = self._f(x)
         xd = dr.detach(x)
         tail = xd > self._erfc_switch
-        z = dr.select(tail, xd, self._erfc_switch + 1.0)
-        t = z
-        for k in range(self._erfc_depth, 0, -1):
-            t = z + (0.5 * k) / t
-        v = dr.select(tail, dr.exp(-z * z) * _INV_SQRT_PI / t, 1.0 - dr.erf(xd))
+
+        def fraction(xd):
+            z = dr.select(tail, xd, self._erfc_switch + 1.0)
+            t = z
+            for k in range(self._erfc_depth, 0, -1):
+                t = z + (0.5 * k) / t
+            return dr.exp(-z * z) * _INV_SQRT_PI / t
+        v = self.branch(tail, fraction, lambda xd: 1.0 - dr.erf(xd), xd)
         return _lin(v, (-2.0 * _INV_SQRT_PI) * dr.exp(-xd * xd), x)
 
     def sigmoid(self, x):

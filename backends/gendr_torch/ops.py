@@ -5,6 +5,8 @@ import math
 
 import torch
 
+from gendr.ops import select_both
+
 
 class _WithDerivative(torch.autograd.Function):
     """value(x) evaluated without autograd; its derivative is derivative(x)."""
@@ -62,6 +64,10 @@ class TorchOps:
     @staticmethod
     def where(c, a, b):
         return torch.where(c, a, b)  # accepts Python scalars for a or b
+
+    @staticmethod
+    def branch(c, if_true, if_false, *args):
+        return select_both(torch.where, c, if_true, if_false, args)
 
     @staticmethod
     def clamp(x, lo=None, hi=None):
