@@ -108,3 +108,21 @@ def test_formulas_branch_exactly_like_select(T, name, params, rev):
             got = _value_and_derivative(lambda x: d.cdf_and_log_sf(DrJitOps(T), x)[k], T, X, in_loop)
             want = _value_and_derivative(lambda x: d.cdf_and_log_sf(_SelectBoth(T), x)[k], T, X, in_loop)
             assert _same(got[0], want[0]) and _same(got[1], want[1]), (k, in_loop)
+
+
+@pytest.mark.parametrize("rev", [False, True])
+@pytest.mark.parametrize("shift", [0.0, 0.7])
+def test_shared_evaluation_equals_the_separate_functions(rev, shift):
+    """gamma's cdf_and_log_sf (one evaluation through the family's cdf_and_logs) equals cdf and
+    log_sf computed separately, reversed and shifted too."""
+    d = gendr.distribution("gamma", shape=2.0, reversed=rev, shift=shift)
+    F, log_sf = d.cdf_and_log_sf(numpy_ops, X)
+    np.testing.assert_array_equal(F, d.cdf(numpy_ops, X))
+    np.testing.assert_array_equal(log_sf, d.log_sf(numpy_ops, X))
+
+
+def test_cdf_and_logs_requires_accurate_logs():
+    from gendr.distributions import DistributionFamily
+    with pytest.raises(ValueError, match="'mine'.*accurate_logs"):
+        DistributionFamily("mine", lambda ops, x: x, lambda ops, x: x, support=lambda: (0.0, 1.0),
+                           tails=("bounded", "bounded"), cdf_and_logs=lambda ops, x: (x, x, x))
