@@ -332,7 +332,8 @@ def _log1mexp(ops, a):
     small = a < _LN2
     a_small = ops.where(small, a, _LN2)
     a_large = ops.where(small, _LN2, a)
-    return ops.where(small, ops.log(-ops.expm1(-a_small)), ops.log1p(-ops.exp(-a_large)))
+    return ops.branch(small, lambda s, l: ops.log(-ops.expm1(-s)), lambda s, l: ops.log1p(-ops.exp(-l)),
+                      a_small, a_large)
 
 
 # --- heaviside ----------------------------------------------------------------------------------
@@ -551,14 +552,17 @@ def _hypsec_pdf(ops, x):
 
 def _hypsec_log_sf(ops, x):
     pos = x > 0.0
-    a = (0.5 * math.pi) * ops.where(pos, x, 0.0)
-    far = a > 40.0  # atan(u) = u to 1e-35 relative for u = e^(−a) < e^(−40)
-    a_near = ops.where(far, 40.0, a)
-    log_pos = ops.where(far, _LOG_2_OVER_PI - a,
-                        ops.log((2.0 / math.pi) * ops.atan(ops.exp(-a_near))))
-    xn = ops.where(pos, 0.0, x)
-    log_neg = ops.log1p(-(2.0 / math.pi) * ops.atan(ops.exp((0.5 * math.pi) * xn)))
-    return ops.where(pos, log_pos, log_neg)
+
+    def right(x):
+        a = (0.5 * math.pi) * ops.where(pos, x, 0.0)
+        far = a > 40.0  # atan(u) = u to 1e-35 relative for u = e^(−a) < e^(−40)
+        a_near = ops.where(far, 40.0, a)
+        return ops.where(far, _LOG_2_OVER_PI - a, ops.log((2.0 / math.pi) * ops.atan(ops.exp(-a_near))))
+
+    def left(x):
+        xn = ops.where(pos, 0.0, x)
+        return ops.log1p(-(2.0 / math.pi) * ops.atan(ops.exp((0.5 * math.pi) * xn)))
+    return ops.branch(pos, right, left, x)
 
 
 DISTRIBUTIONS.add(DistributionFamily(
