@@ -139,18 +139,22 @@ def shape_findings(rows, noise: float = 0.03) -> list[Finding]:
             why = "no asymmetric rows" if not am else ("no other asymmetric rows" if has_gamma else "no gamma rows")
             out.append(Finding("gamma best among the asymmetric distributions", "not testable", why))
 
-        # T-conorm columns: each against the median column over the same cells
+        # T-conorm columns: each against the median of the other columns over the same cells
         def column_vs_median(labels, claim, good):
-            """``labels``' columns (of the grid, or "average") against the median grid column."""
+            """``labels``' columns (of the grid, or "average") against the median of the other grid
+            columns that have run in every compared cell: one set for all cells (columns a partial
+            sweep has run for some rows only must not shift the median there), without the
+            compared columns (seven poor columns among twelve would otherwise be the median)."""
             cols = [j for j in (tl.index(x) for x in labels if x in tl) if np.isfinite(M_all[:, :, j]).any()]
-            present = [j for j in range(ngrid) if np.isfinite(M[:, :, j]).any()]
-            if not cols or len(present) < 3:
-                return Finding(claim, "not testable", "too few T-conorm columns run")
-            med = np.nanmedian(M[:, :, present], axis=2)  # [2, 23] median column per cell row
-            a = np.nanmean(M_all[:, :, cols], axis=2)
+            a = np.nanmean(M_all[:, :, cols], axis=2) if cols else None
+            common = [] if a is None else [j for j in range(ngrid) if j not in cols
+                                           and np.isfinite(M[:, :, j][np.isfinite(a)]).all()]
+            if len(common) < 3:
+                return Finding(claim, "not testable", "too few T-conorm columns run in the compared cells")
+            med = np.nanmedian(M[:, :, common], axis=2)  # [2, 23] median column per cell row
             if good:
-                return _compare(claim, a, med, noise, "/".join(labels), "median column")
-            return _compare(claim, med, a, noise, "median column", "/".join(labels))
+                return _compare(claim, a, med, noise, "/".join(labels), "median of the other columns")
+            return _compare(claim, med, a, noise, "median of the other columns", "/".join(labels))
 
         out.append(column_vs_median(["max"], "max poor", good=False))
         out.append(column_vs_median(["average"], "average poor", good=False))
