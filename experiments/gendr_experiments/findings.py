@@ -146,10 +146,10 @@ def shape_findings(rows, noise: float = 0.03) -> list[Finding]:
             sweep has run for some rows only must not shift the median there), without the
             compared columns (seven poor columns among twelve would otherwise be the median)."""
             cols = [j for j in (tl.index(x) for x in labels if x in tl) if np.isfinite(M_all[:, :, j]).any()]
-            a = np.nanmean(M_all[:, :, cols], axis=2) if cols else None
-            common = [] if a is None else [j for j in range(ngrid) if j not in cols
-                                           and np.isfinite(M[:, :, j][np.isfinite(a)]).all()]
-            if len(common) < 3:
+            a = np.nanmean(M_all[:, :, cols], axis=2) if cols else np.full(M.shape[:2], np.nan)
+            cells = np.isfinite(a)
+            common = [j for j in range(ngrid) if j not in cols and np.isfinite(M[:, :, j][cells]).all()]
+            if not cells.any() or len(common) < 3:
                 return Finding(claim, "not testable", "too few T-conorm columns run in the compared cells")
             med = np.nanmedian(M[:, :, common], axis=2)  # [2, 23] median column per cell row
             if good:
