@@ -283,13 +283,64 @@ def test_tile_order_changes_no_value(monkeypatch):
     """Lanes in tile_order give the images and gradients of row-major lanes (each pixel still visits
     its tile's faces in ascending order; only the gradient scatter order differs)."""
     calls, order = [], R.tile_order
-    monkeypatch.setattr(R, "tile_order", lambda T, bins: calls.append(1) or order(T, bins))
+    monkeypatch.setattr(R, "tile_order", lambda T, bins, *a: calls.append(1) or order(T, bins, *a))
     r0 = _fwd_bwd(_renderer(False, size=(37, 29)), MESH.vertices, tau_grad=True)
     assert calls  # the strips of the probabilistic sum were ordered
-    monkeypatch.setattr(R, "tile_order", lambda T, bins: None)
+    monkeypatch.setattr(R, "tile_order", lambda T, bins, *a: None)
     r1 = _fwd_bwd(_renderer(False, size=(37, 29)), MESH.vertices, tau_grad=True)
     assert np.array_equal(r0[0], r1[0])
     _close(r0, r1, 1e-12)
+
+
+@pytest.mark.parametrize("n,group", [(6144, 4), (4097, 4), (7, 4), (1000, 1), (37, 16), (16, 16)])
+def test_interleave_deals_whole_groups_evenly(n, group):
+    """_interleave is a permutation of 0..n−1 that moves groups of ``group`` consecutive ranks
+    (a packet's tiles) as one, aligned, a partial last group last; and any stretch of a quarter of
+    the positions (a thread's block) holds about a quarter of every quartile of the ranks."""
+    from drjit.llvm import UInt32
+    T = R.Types(dr.llvm, False)
+    pos = np.asarray(R._interleave(T, dr.arange(UInt32, n), n, group))
+    assert sorted(pos) == list(range(n))
+    full = n // group
+    for g in range(full):
+        p = pos[g * group:(g + 1) * group]
+        assert p[0] % group == 0 and list(p) == list(range(p[0], p[0] + group))
+    assert list(pos[full * group:]) == list(range(full * group, n))
+    if full >= 64:
+        rank_at = np.argsort(pos)
+        q = full * group // 4
+        for start in (0, q // 3, q, 2 * q + 5):
+            quartiles = rank_at[start:start + q] * 4 // (full * group)
+            assert np.all(np.abs(np.bincount(quartiles, minlength=4) / q - 0.25) <= 0.05), quartiles
+
+
+@pytest.mark.parametrize("layout", ["face-major", "pixel-major"])
+@pytest.mark.parametrize("tcn", ["probabilistic", "or"])
+def test_dealt_lanes_change_no_value(monkeypatch, layout, tcn):
+    """Pixel lanes dealt out for several threads (deal_blocks: the tile order interleaved) give the
+    images of the plain order bit for bit, and the gradients up to the order of the pixel-major
+    scatters (the face-major backward does not read the lane order). One thread: with two, Dr.Jit's
+    scatter-adds into the vertices vary in order from run to run."""
+    monkeypatch.setattr(R, "FACE_MAJOR_RADIUS_PX", -1.0 if layout == "pixel-major" else math.inf)
+    monkeypatch.setattr(R, "FACE_LANES", 2 * len(MESH.faces))  # two chunks per face
+    threads = dr.thread_count()
+    dr.set_thread_count(1)
+    try:
+        res = []
+        for deal in (False, True):
+            monkeypatch.setattr(R, "deal_blocks", lambda T, _d=deal: _d)
+            r = gendr.Renderer("logistic", tcn, tau=0.05, image_size=(64, 56), eps=1e-4, blend=None,
+                               backend="drjit", device="llvm")
+            if tcn == "or":  # (not differentiable)
+                res.append([r.render(MESH.vertices, FACES, gendr.PerspectiveCamera(eye=(0.1, 0.05, 3.0))).numpy()])
+            else:
+                res.append(_fwd_bwd(r, MESH.vertices, tau_grad=True))
+    finally:
+        dr.set_thread_count(threads)
+    assert np.array_equal(res[0][0], res[1][0]) and res[0][0].max() > 0
+    if layout == "face-major" and tcn != "or":
+        assert np.array_equal(res[0][1], res[1][1])
+    _close(res[0], res[1], 1e-12)
 
 
 @pytest.mark.parametrize("dist,eps", [(("cauchy", {}), 0.0), (("gaussian", {"squared": True}), 1e-3),
