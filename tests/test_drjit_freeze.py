@@ -343,6 +343,31 @@ def test_dealt_lanes_change_no_value(monkeypatch, layout, tcn):
     _close(res[0], res[1], 1e-12)
 
 
+@pytest.mark.parametrize("dtype", ["float64", "float32"])
+@pytest.mark.parametrize("dist,tcn", [("logistic", "probabilistic"), ("cauchy", "max"), ("uniform", "einstein")])
+def test_select_minima_of_the_pair_distance_change_no_value(monkeypatch, dist, tcn, dtype):
+    """The pair distance's minima and maxima as compare-and-select (R._min, R._max: one x86
+    instruction each) give the images and gradients of Dr.Jit's IEEE minimum and maximum bit for
+    bit, on the parity scene (a zero-area face, a face crossing the near plane, one behind the
+    camera: ties between edges and ±0). One thread: the order of the sums is then fixed."""
+    torch = pytest.importorskip("torch")
+    from test_drjit_parity import run
+    threads = dr.thread_count()
+    dr.set_thread_count(1)
+    try:
+        res = []
+        for fns in ((R._min, R._max), (lambda a, b: dr.minimum(a, b), lambda a, b: dr.maximum(a, b))):
+            monkeypatch.setattr(R, "_min", fns[0])
+            monkeypatch.setattr(R, "_max", fns[1])
+            res.append(run("drjit", gendr.distribution(dist), gendr.tconorm(tcn), dtype=getattr(torch, dtype)))
+    finally:
+        dr.set_thread_count(threads)
+    assert torch.equal(res[0][0], res[1][0]) and float(res[0][0][..., 3].max()) > 0
+    assert res[0][1].keys() == res[1][1].keys()
+    for k in res[0][1]:
+        assert torch.equal(res[0][1][k], res[1][1][k]), k
+
+
 @pytest.mark.parametrize("dist,eps", [(("cauchy", {}), 0.0), (("gaussian", {"squared": True}), 1e-3),
                                       (("gamma", {"shape": 2.0, "reversed": True}), 1e-4)])
 def test_replay_heavy_tails_squared_and_eps0(dist, eps):
