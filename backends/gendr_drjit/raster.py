@@ -772,7 +772,7 @@ def _edge_setup(fc, T, f, px):
 def _min(a, b):
     """a < b ? a : b, one x86 ``minps``. ``dr.minimum`` is the IEEE 754-2019 minimum (NaN
     propagating, −0 < +0): six AVX-512 instructions, and the pair distance takes twelve minima or
-    maxima per pixel (loops −7 to −11 %). Same values here: the corners of binned faces are finite,
+    maxima per pixel (loops −4 to −14 %). Same values here: the corners of binned faces are finite,
     and a ±0 tie yields a zero either way."""
     return dr.select(a < b, a, b)
 
