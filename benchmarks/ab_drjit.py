@@ -23,10 +23,8 @@ several threads only holds for the image: the order of scatter-adds across threa
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import statistics
-import sys
 import time
 from pathlib import Path
 
@@ -34,18 +32,11 @@ import torch
 
 import gendr_drjit.backend as backend
 import gendr_drjit.raster as current
+from ab_raster import load
 from bench_render import machine
 from bench_step import CASES, versions
 from gendr_experiments.common import set_threads
 from gendr_experiments.shape import ShapeProblem
-
-
-def load(path):
-    spec = importlib.util.spec_from_file_location("gendr_drjit._raster_other", path)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod  # dataclasses look their module up
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def use(module, renderer):
@@ -83,7 +74,7 @@ def main(argv=None):
 
     import drjit as dr
     set_threads("drjit", a.threads)
-    other = load(a.other)
+    other = load(a.other, "gendr_drjit._raster_other")
     cfg = dict(CASES["shape"][1], target=a.target, tau=a.tau, eps=1e-6, cutoff=100.0)
     prob = ShapeProblem(cfg, protocol="paper", backend="drjit", distribution=a.dist, tconorm=a.tconorm,
                         backend_options={"freeze": False})

@@ -29,8 +29,9 @@ import gendr_torch.raster as current
 from gendr.scenes import icosphere
 
 
-def load(path):
-    spec = importlib.util.spec_from_file_location("gendr_torch._raster_other", path)
+def load(path, name="gendr_torch._raster_other"):
+    """The module at ``path``, registered as ``name`` (ab_drjit.py loads a Dr.Jit rasterizer with it)."""
+    spec = importlib.util.spec_from_file_location(name, path)
     mod = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = mod  # dataclasses look their module up
     spec.loader.exec_module(mod)

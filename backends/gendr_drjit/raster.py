@@ -736,7 +736,7 @@ def _face_edges(fc, T, f):
     """Per (lane, face ``f``): the face's edges, (Px, Py, Ex, Ey, nx, ny, c, il) each. Edge k runs
     from corner P_k to corner k + 1 (E); its unit normal (nx, ny) points into the face (orient);
     il = 1/|E|²; c offsets degenerate edges (see distance_parts)."""
-    K, Float = fc.K, T.Float
+    K = fc.K
     v = dr.gather(T.ArrayX, fc.packed, f, shape=(8 if 2 * K + 1 <= 8 else 16, dr.width(f)))
     Xs, Ys, orient = [v[k] for k in range(K)], [v[K + k] for k in range(K)], v[2 * K]
     edges = []
