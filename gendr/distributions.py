@@ -862,15 +862,20 @@ def _gamma_cdf_and_logs(ops, x, shape):
     def d_log_cdf(_):  # d log P/dx = f/P; in the series' lanes exactly k/(x·Σ) (a = x, b = Σ)
         return ops.where(pos, ops.where(use_series, k / (a * b), ops.exp(_gamma_log_pdf(ops, xd, k) - log_p)), 0.0)
 
+    shape_d = []  # ∂/∂k of the three, evaluated once (and only for a learnable k)
+
+    def dk(i):
+        if not shape_d:
+            shape_d.append(_gamma_shape_derivatives(ops, x, k))
+        return shape_d[0][i]
+
     def dk_cdf():  # ∂P/∂k = P ∂log P/∂k = −Q ∂log Q/∂k (the one that does not cancel)
-        use, dlog_p, dlog_q, lp, lq = _gamma_shape_derivatives(ops, x, k)
+        use, dlog_p, dlog_q, lp, lq = (dk(i) for i in range(5))
         return ops.where(use, ops.exp(lp) * dlog_p, -ops.exp(lq) * dlog_q)
     return (_with_shape_gradient(ops, ops.with_derivative(lambda _: F, lambda _: _gamma_pdf(ops, xd, k), x),
                                  shape, dk_cdf),
-            _with_shape_gradient(ops, ops.with_derivative(lambda _: log_sf, d_log_sf, x), shape,
-                                 lambda: _gamma_shape_derivatives(ops, x, k)[2]),
-            _with_shape_gradient(ops, ops.with_derivative(lambda _: log_cdf, d_log_cdf, x), shape,
-                                 lambda: _gamma_shape_derivatives(ops, x, k)[1]))
+            _with_shape_gradient(ops, ops.with_derivative(lambda _: log_sf, d_log_sf, x), shape, lambda: dk(2)),
+            _with_shape_gradient(ops, ops.with_derivative(lambda _: log_cdf, d_log_cdf, x), shape, lambda: dk(1)))
 
 
 DISTRIBUTIONS.add(DistributionFamily(
