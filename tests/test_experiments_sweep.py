@@ -2,9 +2,10 @@
 import json
 
 import pytest
+import torch
 
 from gendr_experiments.common import source_hash
-from gendr_experiments.sweep import (OtherCodeError, best_setting_search, execute, expand, fine_grid,
+from gendr_experiments.sweep import (OtherCodeError, best_setting_search, drift_tolerance, execute, expand, fine_grid,
                                      load_rows, run_config, summarize_best, verify_rows, write_csv)
 
 # a tiny shape problem: ~0.1 s per run
@@ -123,6 +124,22 @@ def test_verify_rows_reports_drift(tmp_path):
     (v,) = verify_rows([moved])
     assert not v["ok"] and not v["same_code"] and v["drift"] == pytest.approx(0.5)
     assert len(verify_rows(rows, sample=1, seed=3)) == 1
+
+
+def test_verify_rows_asks_exactness_only_on_the_same_simd_level(tmp_path):
+    """Another SIMD level (Dr.Jit's vector width, torch's kernels) reorders float32 sums, so a row of
+    the same code from such a CPU, or one that does not say, gets the other-code tolerance, not 0."""
+    (row,) = execute(_configs()[:1], tmp_path / "r.jsonl", workers=0, progress=False)
+    assert row["provenance"]["cpu"]["simd"] == torch.backends.cpu.get_cpu_capability()
+    prov = row["provenance"]
+    elsewhere = dict(row, metric=row["metric"] + 0.01, provenance=dict(prov, cpu=dict(prov["cpu"], simd="OTHER")))
+    unrecorded = dict(row, metric=row["metric"] + 0.01, provenance={k: v for k, v in prov.items() if k != "cpu"})
+    same, other, unknown = verify_rows([row, elsewhere, unrecorded])
+    assert same["same_cpu"] and same["tolerance"] == 0.0 and same["ok"]
+    for v, simd in ((other, "OTHER"), (unknown, None)):
+        assert v["same_code"] and not v["same_cpu"] and v["stored_simd"] == simd
+        assert v["tolerance"] == drift_tolerance(row) > 0.01 and v["ok"]
+        assert v["drift"] == pytest.approx(0.01)
 
 
 def test_execute_starts_nothing_after_the_deadline(tmp_path):

@@ -306,21 +306,24 @@ def _no_rows(files, what="rows") -> int:
 
 
 def cmd_verify(a) -> int:
+    from .common import cpu_info
     from .sweep import verify_rows
     _apply_data(a)
     rows = _results(a.results)
     if not rows:
         return _no_rows(a.results)
     report = verify_rows(rows, sample=a.sample, seed=a.seed, tolerance=a.tolerance)
-    print(f"{'key':16s} {'label':40s} {'stored':>9s} {'now':>9s} {'drift':>9s} {'tol':>6s} code")
+    print(f"{'key':16s} {'label':40s} {'stored':>9s} {'now':>9s} {'drift':>9s} {'tol':>6s} code, cpu")
     for v in report:
         fmt = lambda x: "None" if x is None else f"{x:9.4g}"
+        code = "same code" if v["same_code"] else f"other code ({v['stored_code']})"
+        cpu = "same cpu" if v["same_cpu"] else f"other cpu ({v['stored_simd'] or 'not recorded'})"
         print(f"{v['key']:16s} {str(v['label'])[:40]:40s} {fmt(v['stored']):>9s} {fmt(v['now']):>9s} "
-              f"{v['drift']:9.3g} {v['tolerance']:6.3g} {'same' if v['same_code'] else 'other (' + str(v['stored_code']) + ')'}"
-              f"{'' if v['ok'] else '  DRIFT'}")
+              f"{v['drift']:9.3g} {v['tolerance']:6.3g} {code}, {cpu}{'' if v['ok'] else '  DRIFT'}")
     bad = [v for v in report if not v["ok"]]
-    print(f"{len(report)} rows re-run, {len(bad)} beyond tolerance, "
-          f"{sum(not v['same_code'] for v in report)} made by other code", file=sys.stderr)
+    print(f"{len(report)} rows re-run, {len(bad)} beyond tolerance, {sum(not v['same_code'] for v in report)} "
+          f"made by other code, {sum(not v['same_cpu'] for v in report)} on another CPU SIMD level "
+          f"(this one: {cpu_info()['simd']})", file=sys.stderr)
     if a.json:
         Path(a.json).write_text(json.dumps(report, indent=1))
     return 1 if bad else 0

@@ -23,7 +23,7 @@ __all__ = ["instance_from_config", "grid_instance", "make_renderer", "hard_rende
            "load_target_mesh", "soft_iou_loss", "iou_loss_per_view", "mesh_laplacian", "laplacian_loss", "flatten_edges",
            "flatten_loss", "rotation_angle_deg", "axis_angle_to_matrix", "config_hash", "versions",
            "log_tau_schedule", "PAPER_DATA_ENV", "paper_data_dir", "resolve_data_path", "load_template",
-           "source_hash", "provenance", "file_digest", "data_digests", "preset_config", "set_threads"]
+           "source_hash", "cpu_info", "provenance", "file_digest", "data_digests", "preset_config", "set_threads"]
 
 
 # ------------------------------------------------------------------------------------------------
@@ -431,11 +431,26 @@ def set_threads(backend: str, threads: int | None) -> None:
         torch.set_num_threads(threads)
 
 
+@lru_cache(maxsize=1)
+def cpu_info() -> dict:
+    """The CPU a run used: ``model`` (its name, as the OS reports it) and ``simd``, torch's CPU
+    capability ("AVX512", "AVX2", ...). The SIMD level decides the vector width that Dr.Jit's LLVM
+    backend compiles for and the kernels torch picks, so it changes float32 summation orders: a run is
+    bit-reproducible only on the same level (code, threads and versions equal)."""
+    model = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            model = next((ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")), model)
+    except OSError:  # not Linux
+        pass
+    return {"model": model, "simd": torch.backends.cpu.get_cpu_capability()}
+
+
 def provenance(backend: str) -> dict:
     """What a result row records about the code and machine that made it: versions, the source hash
-    (:func:`source_hash`), backend, device, dtype and thread counts."""
+    (:func:`source_hash`), backend, device, dtype, thread counts and the CPU (:func:`cpu_info`)."""
     out = {"code_hash": source_hash(backend), "backend": backend, "device": "cpu", "dtype": "float32",
-           "torch_threads": torch.get_num_threads(), "machine": platform.machine(),
+           "torch_threads": torch.get_num_threads(), "machine": platform.machine(), "cpu": cpu_info(),
            "git_commit": git_commit(), "versions": versions()}
     if backend == "drjit":
         import drjit

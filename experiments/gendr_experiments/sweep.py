@@ -418,11 +418,12 @@ def drift_tolerance(row: dict) -> float:
 
 def verify_rows(rows, *, sample: int | None = None, seed: int = 0, tolerance: float | None = None) -> list[dict]:
     """Re-run ``sample`` rows (all when None; a seeded random choice otherwise) from their stored
-    configs and compare the metrics. The tolerance is 0 when the row's code hash is this code's (one
-    thread reproduces a run exactly), else :func:`drift_tolerance`, unless ``tolerance`` is given.
+    configs and compare the metrics. The tolerance is 0 when the row's code hash is this code's and it
+    ran on this CPU's SIMD level (one thread then reproduces a run exactly; rows that do not record
+    their CPU count as another), else :func:`drift_tolerance`, unless ``tolerance`` is given.
     Returns one dict per row: ``key``, ``label``, ``stored``, ``now``, ``drift`` (absolute),
-    ``tolerance``, ``ok``, ``same_code``, ``stored_code``, ``code``, ``seconds``. Rows that ended in
-    an error are skipped."""
+    ``tolerance``, ``ok``, ``same_code``, ``stored_code``, ``code``, ``same_cpu``, ``stored_simd``,
+    ``simd``, ``seconds``. Rows that ended in an error are skipped."""
     rows = [r for r in rows if r.get("status") == "ok"]
     if sample is not None and sample < len(rows):
         pick = np.random.default_rng(seed).choice(len(rows), size=sample, replace=False)
@@ -431,10 +432,14 @@ def verify_rows(rows, *, sample: int | None = None, seed: int = 0, tolerance: fl
     for r in rows:
         now = run_config(r["config"])
         same = r.get("code_hash") == now["code_hash"]
-        tol = (0.0 if same else drift_tolerance(r)) if tolerance is None else float(tolerance)
+        stored_simd = r.get("provenance", {}).get("cpu", {}).get("simd")
+        simd = now["provenance"]["cpu"]["simd"]
+        exact = same and stored_simd == simd
+        tol = (0.0 if exact else drift_tolerance(r)) if tolerance is None else float(tolerance)
         a, b = r.get("metric"), now.get("metric")
         drift = abs(a - b) if (a is not None and b is not None) else (0.0 if a is None and b is None else math.inf)
         out.append({"key": r["key"], "label": r.get("label"), "stored": a, "now": b, "drift": drift, "tolerance": tol,
                     "ok": drift <= tol, "same_code": same,
-                    "stored_code": r.get("code_hash"), "code": now["code_hash"], "seconds": now["seconds"]})
+                    "stored_code": r.get("code_hash"), "code": now["code_hash"], "same_cpu": stored_simd == simd,
+                    "stored_simd": stored_simd, "simd": simd, "seconds": now["seconds"]})
     return out
