@@ -969,7 +969,11 @@ class AlphaSum(dr.CustomOp):
             d, (kk, tt, ux, uy) = _strip_pixel(T, _column_edges(face_edges, px), py, True)
             x = dist.argument(ops, d, tau)
             live = live_pairs(x, x_eps, x_cut)
-            dl = dr.gather(Float, delta_img, fl.base + T.UInt32(i * W + j), True if live is None else live)
+            # an unmasked read, then the select (the box lies in the image): LLVM turns a masked gather
+            # into a branch per lane where the CPU has no fast gathers (AVX2 Zen 3: backward −9 %)
+            dl = dr.gather(Float, delta_img, fl.base + T.UInt32(i * W + j))
+            if live is not None:
+                dl = dr.select(live, dl, 0.0)
             gt, gp, gk, *acc = dr.if_stmt((d, x, kk, tt, ux, uy, dl, gt, gp, gk, *acc), dl != 0.0, pair,
                                           lambda *a: a[7:])
             return (*fl.next_pixel(i, j), gt, gp, gk, *acc)
