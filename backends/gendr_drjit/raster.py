@@ -723,7 +723,7 @@ def _pack_corners(T, Xd, Yd, orient):
     gather (a vector load per lane and a transpose) instead of 2K + 1 gathers: forward loop of the
     paper shape step −10 to −12 % at τ = 0.01 and 0.003 (toggled in one process, 1 thread)."""
     cols = [*Xd, *Yd, orient]
-    n = 8 if len(cols) <= 8 else 16
+    n = _packed_width(len(Xd))
     m = dr.width(orient)
     packed = dr.zeros(T.Float, n * m)
     base = dr.arange(T.UInt32, m) * n
@@ -732,12 +732,17 @@ def _pack_corners(T, Xd, Yd, orient):
     return packed
 
 
+def _packed_width(K):
+    """Entries per face of :func:`_pack_corners`' array (2K + 1 used, padded to a packet width)."""
+    return 8 if 2 * K + 1 <= 8 else 16
+
+
 def _face_edges(fc, T, f):
     """Per (lane, face ``f``): the face's edges, (Px, Py, Ex, Ey, nx, ny, c, il) each. Edge k runs
     from corner P_k to corner k + 1 (E); its unit normal (nx, ny) points into the face (orient);
     il = 1/|E|²; c offsets degenerate edges (see distance_parts)."""
     K = fc.K
-    v = dr.gather(T.ArrayX, fc.packed, f, shape=(8 if 2 * K + 1 <= 8 else 16, dr.width(f)))
+    v = dr.gather(T.ArrayX, fc.packed, f, shape=(_packed_width(K), dr.width(f)))
     Xs, Ys, orient = [v[k] for k in range(K)], [v[K + k] for k in range(K)], v[2 * K]
     edges = []
     for k in range(K):
