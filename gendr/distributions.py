@@ -49,6 +49,10 @@ class DistributionFamily:
     #: log_sf and log_cdf keep their relative accuracy on the whole line, also where F (or 1 − F) is
     #: tiny, so the renderer's log(1 − F) needs no log1p(−F) branch (tested against scipy/mpmath)
     accurate_logs: bool = False
+    #: optional ``odds(ops, x, **params)`` = F/(1 − F), given where it is cheaper than log(1 − F)
+    #: (logistic: e^x): the probabilistic T-conorm's sum −Σ log(1 − F) = log Π(1 + odds) then needs
+    #: one log per pixel, not one per face (+inf where 1 − F underflows)
+    odds: Callable | None = None
     differentiable: bool = True
     doc: str = ""
 
@@ -168,6 +172,19 @@ class Distribution(LearnableParams):
             return upper
         lower = F < 0.5
         return ops.where(lower, ops.log1p(-ops.where(lower, F, 0.0)), upper)
+
+    @property
+    def has_odds(self) -> bool:
+        """Whether the family gives :meth:`odds` in closed form."""
+        return self.family.odds is not None
+
+    def odds(self, ops, x):
+        """F(x)/(1 − F(x)) of the effective CDF (families with ``has_odds`` only)."""
+        f, kw = self.family, self.kwargs
+        if f.odds is None:
+            raise NotImplementedError(f"distribution {self.label()!r} has no closed-form odds")
+        x = x + self.shift if self.shift else x
+        return 1.0 / f.odds(ops, -x, **kw) if self.reversed else f.odds(ops, x, **kw)
 
     def support(self) -> tuple[float, float]:
         lo, hi = self.family.support(**self.kwargs)
@@ -530,6 +547,7 @@ DISTRIBUTIONS.add(DistributionFamily(
     log_sf=lambda ops, x: -ops.softplus(x),
     log_cdf=lambda ops, x: -ops.softplus(-x),
     accurate_logs=True,
+    odds=lambda ops, x: ops.exp(x),
     doc="F(x) = 1/(1+exp(−x)). SoftRas is its squared variant with the probabilistic T-conorm.",
 ))
 

@@ -72,6 +72,9 @@ class TConormFamily:
     generator_at_one: Callable | None = None  # (**params) -> g(1) as a Python float (inf: strict)
     doc: str = ""
     is_tconorm: bool = True
+    #: the generator is log(1 + x/(1 − x)) (probabilistic): a backend may sum it as log Π(1 + odds)
+    #: for distributions with closed-form odds (Distribution.has_odds), one log per pixel
+    odds_product: bool = False
 
 
 TCONORMS = Registry("tconorm")
@@ -361,6 +364,7 @@ TCONORMS.add(TConormFamily(
     generator=lambda ops, x, log1m_x: -log1m_x,
     generator_inverse=lambda ops, s: -ops.expm1(-s),
     generator_at_one=lambda: math.inf,
+    odds_product=True,
     doc="S(a, b) = a + b − ab; generator −log(1 − x). SoftRas' and DIB-R's aggregation.",
 ))
 

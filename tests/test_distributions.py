@@ -5,6 +5,7 @@ Numpy evaluates both branches of every ``where``, so divide/overflow RuntimeWarn
 silenced; NaNs are checked for explicitly instead.
 """
 import math
+import re
 
 import mpmath
 import numpy as np
@@ -138,6 +139,21 @@ def test_log_sf_and_log_cdf_consistent(d):
     # and the log values are monotone themselves (no wiggles where F saturates)
     finite = lambda v: np.maximum(v, -1e300)
     assert np.max(np.diff(finite(lsf))) <= 1e-7 and np.min(np.diff(finite(lcdf))) >= -1e-7
+
+
+@pytest.mark.parametrize("d", CASES, ids=ids)
+def test_odds_are_cdf_over_survival(d):
+    """Where a family gives closed-form odds (the probabilistic T-conorm's product form uses them),
+    odds = F/(1 − F) = exp(log F − log(1 − F)), relatively to 1e-12 (float64) wherever both logs are
+    finite; a family without them says so."""
+    if not d.has_odds:
+        with pytest.raises(NotImplementedError, match=re.escape(d.label())):
+            d.odds(O, GRID)
+        return
+    lsf, lcdf = d.log_sf(O, GRID), eff_log_cdf(d, GRID)
+    m = np.isfinite(lsf) & np.isfinite(lcdf) & (np.abs(lcdf - lsf) < 700)
+    assert m.sum() > len(GRID) // 2
+    np.testing.assert_allclose(d.odds(O, GRID)[m], np.exp(lcdf[m] - lsf[m]), rtol=1e-12, atol=0)
 
 
 @pytest.mark.parametrize("d", CASES, ids=ids)

@@ -40,11 +40,11 @@ def _tau0(dist):
 
 
 def run(backend, dist, tcn, *, dtype=torch.float64, blend=None, eps=1e-3, camera="perspective", colors=None,
-        faces=None, verts=None, **kw):
+        faces=None, verts=None, tau=None, **kw):
     """(image, {name: gradient}) of (image * fixed_randn).sum() w.r.t. every input."""
     faces = (FACES_SOFTMAX if blend == "softmax" else FACES) if faces is None else faces
     v = (scene_vertices() if verts is None else verts).to(dtype).requires_grad_(True)
-    tau = torch.tensor(_tau0(dist), dtype=dtype, requires_grad=True)
+    tau = torch.tensor(_tau0(dist) if tau is None else tau, dtype=dtype, requires_grad=True)
     cam, params = make_camera(camera, dtype)
     ckw = {}
     if colors == "vertex":
@@ -151,6 +151,31 @@ def test_float32(i):
         assert fwd <= F32_FWD_VS_TORCH32, f"float32 forward vs torch float32: {fwd:.3g}"
         for k, e in bwd.items():
             assert e <= F32_GRAD_VS_TORCH32 * max(scale[k], 1e-3), f"float32 gradient w.r.t. {k} vs torch: {e:.3g}"
+
+
+@pytest.mark.parametrize("tau", [0.1, 1e-3])
+def test_odds_product_where_faces_overlap_and_odds_overflow(tau):
+    """logistic | probabilistic: the Dr.Jit loops sum log Π(1 + e^x) (raster.alpha_sums' odds
+    product, capped at 2^100), torch sums softplus(x). At τ = 0.1 soft faces overlap widely; at
+    τ = 1e-3 pixels lie up to hundreds of τ inside the faces, where e^x overflows to inf and the
+    product meets its cap (alpha exactly 1). float64: to F64_TOL. float32: x = d/τ turns the
+    rounding of d into errors 100× those at τ = 0.1 (torch's own float32 forward is 3e-5 off at
+    1e-3), so Dr.Jit's float32 error is held to torch float32's (a sum of logs) + 10 %."""
+    dist, tcn = gendr.distribution("logistic"), gendr.tconorm("probabilistic")
+    assert dist.has_odds and tcn.family.odds_product  # the path under test
+    ref = run("torch", dist, tcn, tau=tau)
+    alpha = ref[0][..., 3]
+    assert ((alpha > 1e-3) & (alpha < 0.999)).any()
+    assert tau > 0.01 or (alpha == 1.0).any()
+    fwd, bwd, _ = compare(run("drjit", dist, tcn, tau=tau), ref)
+    assert fwd <= F64_TOL, f"forward differs by {fwd:.3g}"
+    for k, e in bwd.items():
+        assert e <= F64_TOL, f"gradient w.r.t. {k} differs by {e:.3g}"
+    fwd, bwd, scale = compare(run("drjit", dist, tcn, tau=tau, dtype=torch.float32), ref)
+    fwd_t, bwd_t, _ = compare(run("torch", dist, tcn, tau=tau, dtype=torch.float32), ref)
+    assert fwd <= 1.1 * fwd_t, f"float32 forward vs float64 reference: {fwd:.3g} (torch float32: {fwd_t:.3g})"
+    for k, e in bwd.items():
+        assert e <= 1.1 * bwd_t[k] + 1e-6 * scale[k], f"float32 gradient w.r.t. {k}: {e:.3g} (torch: {bwd_t[k]:.3g})"
 
 
 def test_float32_rgb_softmax():

@@ -235,6 +235,17 @@ def test_generator_basics(t):
 
 
 @_params(ARCH)
+def test_odds_product_flag_means_log1p_of_the_odds(t):
+    """A family flagged ``odds_product`` (backends then sum its generator as log Π(1 + odds)) has the
+    generator log(1 + x/(1 − x)); at least the probabilistic T-conorm is flagged."""
+    assert TCONORMS.get("probabilistic").odds_product
+    if not t.family.odds_product:
+        return
+    inner = GRID[(GRID > 0) & (GRID < 1)]
+    np.testing.assert_allclose(G(t, inner), np.log1p(inner / (1.0 - inner)), rtol=1e-12, atol=0)
+
+
+@_params(ARCH)
 def test_generator_inverse_huge_arguments(t):
     g1 = t.generator_at_one
     s = np.array([0.0, 1e-300, 1e-12, 0.5, 1.0, 30.0, 800.0, 1e30, 1e300, math.inf])

@@ -823,10 +823,21 @@ def _strip_pixel(T, edges, py, track):
                dr.select(inside, -nxb, qxb / r), dr.select(inside, -nyb, qyb / r))
 
 
+#: the odds product's cap: a pixel that reaches it (Σ g ≥ log1p(2^100) = 69.3, where 1 − e^(−S) is 1 in
+#: float32 and float64 alike, or an overflowing e^x) saturates: alpha 1, gradient 0 (≤ e^(−69.3) exact)
+ODDS_PRODUCT_MAX = 2.0 ** 100
+
+
 def alpha_sums(s, fc, T, ops, pix, tau):
-    """Per strip row r: S[r] = Σ_faces g(F(x(d, τ))) and the saturation count nsat[r] (no AD)."""
+    """Per strip row r: S[r] = Σ_faces g(F(x(d, τ))) and the saturation count nsat[r] (no AD).
+
+    Where the T-conorm's generator is log(1 + odds) and the distribution has closed-form odds
+    (probabilistic with logistic: odds e^x), the loop accumulates Q = Π(1 + odds) − 1 instead, by
+    Q ← Q + odds·(1 + Q) (relative accuracy where Q is small), capped at ODDS_PRODUCT_MAX, and
+    S = log1p(Q) once per pixel: no logarithm per pair; nsat is 1 where Q reached the cap."""
     dist, tcn, R = s.distribution, s.tconorm, pix.rows
     x_eps, x_cut = dist.argument_threshold(s.eps), s.cutoff_argument(ops, dr.detach(tau))
+    odds_product = tcn.family.odds_product and dist.has_odds
 
     def body(w, bits, *acc):
         f, w, bits = pix.next_face(w, bits)
@@ -834,13 +845,24 @@ def alpha_sums(s, fc, T, ops, pix, tau):
         S, nsat = list(acc[:R]), list(acc[R:])
         for r in range(R):
             d, _ = _strip_pixel(T, edges, pix.py[r], False)
-            g, sat = generator_terms(dist, tcn, ops, dist.argument(ops, d, tau), x_eps, x_cut)
+            x = dist.argument(ops, d, tau)
+            if odds_product:
+                o = dist.odds(ops, x)
+                keep = live_pairs(x, x_eps, x_cut)
+                o = o if keep is None else dr.select(keep, o, 0.0)
+                S[r] = _min(dr.fma(o, 1.0 + S[r], S[r]), ODDS_PRODUCT_MAX)  # inf (1 − F = 0) too
+                continue
+            g, sat = generator_terms(dist, tcn, ops, x, x_eps, x_cut)
             S[r], nsat[r] = S[r] + g, nsat[r] + dr.select(sat, 1, 0)
         return (w, bits, *S, *nsat)
 
     init = [dr.zeros(T.Float, pix.n) for _ in range(R)] + [dr.zeros(T.UInt32, pix.n) for _ in range(R)]
     out = dr.while_loop((*pix.start(), *init), lambda w, bits, *a: bits != 0, body)
-    return tuple(out[2:2 + R]), tuple(out[2 + R:])
+    S, nsat = out[2:2 + R], out[2 + R:]
+    if odds_product:
+        nsat = [n + dr.select(Q >= ODDS_PRODUCT_MAX, 1, 0) for Q, n in zip(S, nsat)]
+        S = [ops.log1p(Q) for Q in S]
+    return tuple(S), tuple(nsat)
 
 
 class _Ctx:
