@@ -72,9 +72,10 @@ class TConormFamily:
     generator_at_one: Callable | None = None  # (**params) -> g(1) as a Python float (inf: strict)
     doc: str = ""
     is_tconorm: bool = True
-    #: the generator is log(1 + x/(1 − x)) (probabilistic): a backend may sum it as log Π(1 + odds)
-    #: for distributions with closed-form odds (Distribution.has_odds), one log per pixel
-    odds_product: bool = False
+    #: optional ``(**params) -> c`` (or None) where the generator is log(1 + c·x/(1 − x)) (probabilistic:
+    #: 1, einstein: 2, hamacher p > 0: p): a backend may sum it as log Π(1 + c·odds) for distributions
+    #: with closed-form odds (Distribution.has_odds), one log per pixel instead of one per face
+    odds_factor: Callable | None = None
 
 
 TCONORMS = Registry("tconorm")
@@ -122,6 +123,12 @@ class TConorm(LearnableParams):
     def is_tconorm(self) -> bool:
         """False for ``average`` (the mean over the faces), which is not a T-conorm."""
         return self.family.is_tconorm
+
+    def odds_product_factor(self) -> float | None:
+        """c where the generator is log(1 + c·x/(1 − x)) (see TConormFamily.odds_factor); None where it
+        is not of that form or a parameter is learnable."""
+        f = self.family.odds_factor
+        return None if f is None or self.learnable else f(**self.kwargs)
 
     @property
     def streams(self) -> bool:
@@ -364,7 +371,7 @@ TCONORMS.add(TConormFamily(
     generator=lambda ops, x, log1m_x: -log1m_x,
     generator_inverse=lambda ops, s: -ops.expm1(-s),
     generator_at_one=lambda: math.inf,
-    odds_product=True,
+    odds_factor=lambda: 1.0,
     doc="S(a, b) = a + b − ab; generator −log(1 − x). SoftRas' and DIB-R's aggregation.",
 ))
 
@@ -405,6 +412,7 @@ TCONORMS.add(TConormFamily(
     generator=lambda ops, x, log1m_x: ops.log1p(x) - log1m_x,
     generator_inverse=lambda ops, s: ops.tanh(0.5 * s),
     generator_at_one=_strict,
+    odds_factor=lambda: 2.0,
     doc="Einstein sum S(a, b) = (a + b)/(1 + ab) (= hamacher p = 2); generator 2·atanh(x) = "
         "log(1 + x) − log(1 − x), inverse tanh(s/2).",
 ))
@@ -450,6 +458,7 @@ TCONORMS.add(TConormFamily(
     generator=_hamacher_generator,
     generator_inverse=_hamacher_inverse,
     generator_at_one=_strict,
+    odds_factor=lambda p: float(p) if p > 0.0 else None,
     doc="S(a, b) = (a + b + (p − 2)ab)/(1 + (p − 1)ab), p >= 0; generator log((p + (1 − p)(1 − x))/(1 − x)) "
         "= log1p(p·x/(1 − x)) for p > 0, x/(1 − x) for p = 0; inverse expm1(s)/(expm1(s) + p) "
         "(p > 0), s/(1 + s) (p = 0).",

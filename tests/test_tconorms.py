@@ -235,14 +235,18 @@ def test_generator_basics(t):
 
 
 @_params(ARCH)
-def test_odds_product_flag_means_log1p_of_the_odds(t):
-    """A family flagged ``odds_product`` (backends then sum its generator as log Π(1 + odds)) has the
-    generator log(1 + x/(1 − x)); at least the probabilistic T-conorm is flagged."""
-    assert TCONORMS.get("probabilistic").odds_product
-    if not t.family.odds_product:
+def test_odds_factor_means_log1p_of_c_times_the_odds(t):
+    """Where a family gives an odds factor c (backends then sum its generator as log Π(1 + c·odds)),
+    the generator is log(1 + c·x/(1 − x)); probabilistic (1), einstein (2) and hamacher p > 0 (p)
+    give one, hamacher p = 0 (generator x/(1 − x)) does not."""
+    assert (tconorm("probabilistic").odds_product_factor(), tconorm("einstein").odds_product_factor(),
+            tconorm("hamacher", p=0.5).odds_product_factor(), tconorm("hamacher", p=0.0).odds_product_factor()) \
+        == (1.0, 2.0, 0.5, None)
+    c = t.odds_product_factor()
+    if c is None:
         return
     inner = GRID[(GRID > 0) & (GRID < 1)]
-    np.testing.assert_allclose(G(t, inner), np.log1p(inner / (1.0 - inner)), rtol=1e-12, atol=0)
+    np.testing.assert_allclose(G(t, inner), np.log1p(c * inner / (1.0 - inner)), rtol=1e-12, atol=0)
 
 
 @_params(ARCH)

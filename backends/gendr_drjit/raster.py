@@ -831,13 +831,15 @@ ODDS_PRODUCT_MAX = 2.0 ** 100
 def alpha_sums(s, fc, T, ops, pix, tau):
     """Per strip row r: S[r] = Σ_faces g(F(x(d, τ))) and the saturation count nsat[r] (no AD).
 
-    Where the T-conorm's generator is log(1 + odds) and the distribution has closed-form odds
-    (probabilistic with logistic: odds e^x), the loop accumulates Q = Π(1 + odds) − 1 instead, by
-    Q ← Q + odds·(1 + Q) (relative accuracy where Q is small), capped at ODDS_PRODUCT_MAX, and
-    S = log1p(Q) once per pixel: no logarithm per pair; nsat is 1 where Q reached the cap."""
+    Where the T-conorm's generator is log(1 + c·odds) (probabilistic, Einstein, Hamacher) and the
+    distribution has closed-form odds (the logistic's e^x), the loop accumulates Q = Π(1 + c·odds) − 1
+    instead, by Q ← Q + c·odds·(1 + Q) (relative accuracy where Q is small), capped at
+    ODDS_PRODUCT_MAX, and S = log1p(Q) once per pixel: no logarithm per pair; nsat is 1 where Q
+    reached the cap."""
     dist, tcn, R = s.distribution, s.tconorm, pix.rows
     x_eps, x_cut = dist.argument_threshold(s.eps), s.cutoff_argument(ops, dr.detach(tau))
-    odds_product = tcn.family.odds_product and dist.has_odds
+    c = tcn.odds_product_factor() if dist.has_odds else None
+    odds_product = c is not None
 
     def body(w, bits, *acc):
         f, w, bits = pix.next_face(w, bits)
@@ -847,7 +849,7 @@ def alpha_sums(s, fc, T, ops, pix, tau):
             d, _ = _strip_pixel(T, edges, pix.py[r], False)
             x = dist.argument(ops, d, tau)
             if odds_product:
-                o = dist.odds(ops, x)
+                o = dist.odds(ops, x) if c == 1.0 else c * dist.odds(ops, x)
                 keep = live_pairs(x, x_eps, x_cut)
                 o = o if keep is None else dr.select(keep, o, 0.0)
                 S[r] = _min(dr.fma(o, 1.0 + S[r], S[r]), ODDS_PRODUCT_MAX)  # inf (1 − F = 0) too
