@@ -635,6 +635,16 @@ def generator_terms(dist, tcn, ops, x, x_eps, x_cut=None):
     return g, sat
 
 
+def odds_product_slope(dist, c, ops, x, x_eps, x_cut):
+    """∂g/∂x of a generator log(1 + c·odds(x)) (see alpha_sums): c·odds′/(1 + c·odds), one exp and
+    one division for the logistic where forward-mode AD through softplus takes three divisions; 0
+    for culled pairs. NaN where the odds overflow: those pixels saturate, and their δ_S is 0."""
+    o, do = _local_derivative(lambda xx: dist.odds(ops, xx), x)
+    gx = c * do / (1.0 + c * o)
+    keep = live_pairs(x, x_eps, x_cut)
+    return gx if keep is None else dr.select(keep, gx, 0.0)
+
+
 def coverage(s, ops, d, tau, x_cut):
     """p = F(x), 0 where p < eps or x <= x_cut (the reference cut-off; None: none)."""
     x = s.distribution.argument(ops, d, tau)
@@ -828,6 +838,11 @@ def _strip_pixel(T, edges, py, track):
 ODDS_PRODUCT_MAX = 2.0 ** 100
 
 
+def odds_factor(dist, tcn):
+    """c where the loops sum the generator as an odds product log Π(1 + c·odds) (alpha_sums), else None."""
+    return tcn.odds_product_factor() if dist.has_odds else None
+
+
 def alpha_sums(s, fc, T, ops, pix, tau):
     """Per strip row r: S[r] = Σ_faces g(F(x(d, τ))) and the saturation count nsat[r] (no AD).
 
@@ -838,7 +853,7 @@ def alpha_sums(s, fc, T, ops, pix, tau):
     reached the cap."""
     dist, tcn, R = s.distribution, s.tconorm, pix.rows
     x_eps, x_cut = dist.argument_threshold(s.eps), s.cutoff_argument(ops, dr.detach(tau))
-    c = tcn.odds_product_factor() if dist.has_odds else None
+    c = odds_factor(dist, tcn)
     odds_product = c is not None
 
     def body(w, bits, *acc):
@@ -937,11 +952,15 @@ class AlphaSum(dr.CustomOp):
         delta = [g if dr.width(g) == pix.n else dr.zeros(Float, pix.n) + g for g in delta]
         gX = dr.zeros(Float, fc.n_corners) if want_xy else None
         gY = dr.zeros(Float, fc.n_corners) if want_xy else None
+        c_odds = odds_factor(dist, tcn)
 
         def pair(d, x, kk, tt, ux, uy, dl, gt, gp, gk, *acc):
             """One pixel's contribution: the strip's corner accumulators and the τ, p, shape sums."""
             acc = list(acc)
-            _, gx = _local_derivative(lambda xx: generator_terms(dist, tcn, ops, xx, x_eps, x_cut)[0], x)
+            if c_odds is not None:  # the forward summed an odds product (alpha_sums)
+                gx = odds_product_slope(dist, c_odds, ops, x, x_eps, x_cut)
+            else:
+                _, gx = _local_derivative(lambda xx: generator_terms(dist, tcn, ops, xx, x_eps, x_cut)[0], x)
             # a zero incoming gradient contributes nothing, even where ∂g/∂x overflowed (0·inf):
             # as in Dr.Jit's reverse mode (e.g. a pixel whose sum S saturated: ∂A/∂S = 0)
             coef = dr.select(dl != 0.0, dl * gx, 0.0)
