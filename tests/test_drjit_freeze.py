@@ -343,6 +343,29 @@ def test_dealt_lanes_change_no_value(monkeypatch, layout, tcn):
     _close(res[0], res[1], 1e-12)
 
 
+@pytest.mark.parametrize("double", [True, False])
+@pytest.mark.parametrize("size", [(24, 20), (20, 21)])
+def test_face_major_pixel_groups_change_no_value(monkeypatch, size, double):
+    """The face-major backward walks a row in groups of FACE_GROUP pixels read with one packet
+    gather, starting at multiples of the group (the columns left of the box masked off); an odd
+    image width walks single pixels. Groups of 2 and 4 give the images and gradients of single
+    pixels bit for bit (the live pairs are visited in the same order; 1 thread)."""
+    monkeypatch.setattr(R, "FACE_MAJOR_RADIUS_PX", math.inf)
+    threads = dr.thread_count()
+    dr.set_thread_count(1)
+    try:
+        res = {}
+        for group in (1, 2, 4):
+            monkeypatch.setattr(R, "FACE_GROUP", group)
+            res[group] = _fwd_bwd(_renderer(False, tau=0.02, size=size), MESH.vertices, double=double)
+    finally:
+        dr.set_thread_count(threads)
+    assert res[1][0].max() > 0 and np.abs(res[1][1]).max() > 0
+    for group in (2, 4):
+        for a, b in zip(res[group], res[1]):
+            assert (a is None and b is None) or np.array_equal(a, b), group
+
+
 @pytest.mark.parametrize("dtype", ["float64", "float32"])
 @pytest.mark.parametrize("dist,tcn", [("logistic", "probabilistic"), ("cauchy", "max"), ("uniform", "einstein")])
 def test_select_minima_of_the_pair_distance_change_no_value(monkeypatch, dist, tcn, dtype):
