@@ -756,6 +756,10 @@ DISTRIBUTIONS.add(DistributionFamily(
 _GAMMA_SWITCH = 1.5
 _GAMMA_SERIES_TERMS = 32
 _GAMMA_CF_DEPTH = 11
+#: integer shapes whose upper branch is the finite sum Q = e^(−x) Σ_{n<k} x^n/n! (x^k stays finite in
+#: float32 over the x the renderer keeps)
+_GAMMA_INTEGER_SHAPES = frozenset(float(k) for k in range(1, 9))
+_GAMMA_SUM_MAX = 1e4  # (1e4)^8 < float32's max
 
 
 def _log_ratio(ops, x, k):
@@ -775,6 +779,9 @@ def _gamma_parts(ops, x, k, shape_derivatives=False):
     the derivatives reuse: (xs, Σ) of the series in its lanes, (xc, t) of the fraction in the
     others. With ``shape_derivatives``, also ``db``: ∂Σ/∂k or ∂t/∂k of the same truncated series
     and fraction, differentiated term by term in the same loops (see _gamma_shape_derivatives).
+    An integer k in _GAMMA_INTEGER_SHAPES takes the finite sum for Q in place of the fraction (exact,
+    and less work in the renderer's loops; a learnable k that sits on an integer too, so that its
+    image equals the float's; its ∂/∂k keeps the fraction's term-by-term derivative).
     """
     sw = k + _GAMMA_SWITCH
     use_series = x < sw
@@ -809,7 +816,24 @@ def _gamma_parts(ops, x, k, shape_derivatives=False):
         log_q = k * _log_ratio(ops, xc, k) - (xc - k) - (c - math.log(k)) - ops.log(t)
         parts = (ops.log1p(-ops.exp(log_q)), log_q, xc, t)
         return parts + (dt,) if shape_derivatives else parts
-    return (use_series, *ops.branch(use_series, series, fraction, x))
+
+    def finite_sum(x):  # integer k: Q = e^(−x) Σ_{n<k} x^n/n! exactly, positive terms (no fraction);
+        # t = x^k / ((k−1)!·Σ) is the fraction's t, so the derivatives read it alike. Beyond
+        # _GAMMA_SUM_MAX (Q underflows in float64 long before) log Q = −x, from finite clamped terms
+        xc = ops.where(use_series, sw, x)
+        big = xc > _GAMMA_SUM_MAX
+        xs = ops.where(big, _GAMMA_SUM_MAX, xc)
+        total = ops.full_like(xs, 1.0)
+        power = xs
+        for n in range(int(k) - 1, 0, -1):  # Horner: 1 + x(1 + x/2(1 + ... (1 + x/(k−1))))
+            total = 1.0 + total * xs * (1.0 / n)
+            power = power * xs
+        log_q = ops.where(big, -xc, ops.log(total) - xs)
+        t = power / (math.factorial(int(k) - 1) * total)
+        return ops.log1p(-ops.exp(log_q)), log_q, xs, t
+
+    upper = finite_sum if k in _GAMMA_INTEGER_SHAPES and not shape_derivatives else fraction
+    return (use_series, *ops.branch(use_series, series, upper, x))
 
 
 def _gamma_log_pdf(ops, x, k):
@@ -906,8 +930,8 @@ DISTRIBUTIONS.add(DistributionFamily(
     cdf_and_logs=_gamma_cdf_and_logs, accurate_logs=True,
     doc="Gamma with shape k, scale 1: F(x) = P(k, x) (regularized lower incomplete gamma) for "
         "x > 0, 0 below; f(x) = x^(k−1) e^(−x) / Γ(k). P by its power series (32 terms) for "
-        "x < k + 1.5, else 1 − Q with Q by Legendre's continued fraction (depth 11), as a "
-        "branch (``ops.branch``); derivatives via with_derivative (f, −f/Q, f/P), never through "
+        "x < k + 1.5, else 1 − Q with Q by Legendre's continued fraction (depth 11) or, for an "
+        "integer k ≤ 8, the exact finite sum e^(−x) Σ_{n<k} x^n/n!, as a branch (``ops.branch``); derivatives via with_derivative (f, −f/Q, f/P), never through "
         "the iterations.",
 ))
 
