@@ -931,8 +931,8 @@ DISTRIBUTIONS.add(DistributionFamily(
     doc="Gamma with shape k, scale 1: F(x) = P(k, x) (regularized lower incomplete gamma) for "
         "x > 0, 0 below; f(x) = x^(k−1) e^(−x) / Γ(k). P by its power series (32 terms) for "
         "x < k + 1.5, else 1 − Q with Q by Legendre's continued fraction (depth 11) or, for an "
-        "integer k ≤ 8, the exact finite sum e^(−x) Σ_{n<k} x^n/n!, as a branch (``ops.branch``); derivatives via with_derivative (f, −f/Q, f/P), never through "
-        "the iterations.",
+        "integer k ≤ 8, the exact finite sum e^(−x) Σ_{n<k} x^n/n!, as a branch (``ops.branch``); "
+        "derivatives via with_derivative (f, −f/Q, f/P), never through the iterations.",
 ))
 
 

@@ -1036,7 +1036,7 @@ class AlphaSum(dr.CustomOp):
                 # layout always has a finite radius, hence a culling test
                 if live is None:
                     live = (jk >= fl.j0) & (jk <= fl.j1)
-                dl = dls[k] if live is None else dr.select(live, dls[k], 0.0)
+                dl = dr.select(live, dls[k], 0.0)
                 gt, gp, gk, *acc = dr.if_stmt((d, x, kk, tt, ux, uy, dl, gt, gp, gk, *acc), dl != 0.0, pair,
                                               lambda *a: a[7:])
             return (*fl.next_pixel(i, j), gt, gp, gk, *acc)
