@@ -50,7 +50,7 @@ class DistributionFamily:
     #: tiny, so the renderer's log(1 − F) needs no log1p(−F) branch (tested against scipy/mpmath)
     accurate_logs: bool = False
     #: optional ``odds(ops, x, **params)`` = F/(1 − F), given where it is cheaper than log(1 − F)
-    #: (logistic: e^x): a sum of generators log(1 + c·odds) (probabilistic, Einstein, Hamacher;
+    #: (logistic: e^x; Cauchy, reciprocal: one division): a sum of generators log(1 + c·odds) (probabilistic, Einstein, Hamacher;
     #: TConormFamily.odds_factor) is then log Π(1 + c·odds), one log per pixel, not one per face
     #: (+inf where 1 − F underflows)
     odds: Callable | None = None
@@ -623,12 +623,21 @@ def _cauchy_log_sf(ops, x):
     return ops.where(pos, right, ops.log1p(-ops.where(pos, 0.0, t)))
 
 
+def _cauchy_odds(ops, x):
+    # t/(1 − t) outside the face, (1 − t)/t inside: one division, no logarithm (1 − t >= 1/2 is exact
+    # enough); +inf only where t underflows, beyond float32's x ~ 1e38
+    pos, t, _ = _cauchy_tail(ops, x)
+    u = 1.0 - t
+    return ops.where(pos, u, t) / ops.where(pos, t, u)
+
+
 DISTRIBUTIONS.add(DistributionFamily(
     "cauchy", _cauchy_cdf,
     lambda ops, x: 1.0 / (math.pi * (1.0 + x * x)),
     support=_unbounded, tails=(HEAVY, HEAVY),
     log_sf=_cauchy_log_sf, log_cdf=_mirror(_cauchy_log_sf),
     accurate_logs=True,
+    odds=_cauchy_odds,
     doc="Standard Cauchy: F(x) = 1/2 + atan(x)/π, f(x) = 1/(π(1 + x²)). Heavy tails "
         "(1 − F ~ 1/(πx)): the culling radius τ/(π·ε) is finite but of no practical use.",
 ))
@@ -650,6 +659,14 @@ def _reciprocal_log_sf(ops, x):
     return ops.where(pos, -_LN2 - ops.log1p(xp), ops.log1p(-0.5 / (1.0 - xn)))
 
 
+def _reciprocal_odds(ops, x):
+    # F/(1 − F) = 1 + 2x for x > 0 and 1/(1 − 2x) below: exact up to rounding, no logarithm
+    pos = x > 0.0
+    xp = ops.where(pos, x, 0.0)
+    xn = ops.where(pos, 0.0, x)
+    return ops.where(pos, 1.0 + 2.0 * xp, 1.0 / (1.0 - 2.0 * xn))
+
+
 def _reciprocal_pdf(ops, x):
     r = 1.0 + ops.abs(x)
     return 0.5 / (r * r)
@@ -660,6 +677,7 @@ DISTRIBUTIONS.add(DistributionFamily(
     support=_unbounded, tails=(HEAVY, HEAVY),
     log_sf=_reciprocal_log_sf, log_cdf=_mirror(_reciprocal_log_sf),
     accurate_logs=True,
+    odds=_reciprocal_odds,
     doc="F(x) = 1/2 + x/(2(1 + |x|)), f(x) = 1/(2(1 + |x|)²). Heavy tails (1 − F ~ 1/(2x)): "
         "the culling radius ≈ τ/(2ε) is finite but of no practical use.",
 ))
