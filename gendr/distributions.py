@@ -619,8 +619,12 @@ def _cauchy_log_sf(ops, x):
     # atan(1/x) is subnormal
     pos, t, r = _cauchy_tail(ops, x)
     far = x > 1e4
-    right = ops.log(ops.where(pos, ops.where(far, r, t), 1.0)) - ops.where(far, math.log(math.pi) + r * r / 3.0, 0.0)
-    return ops.where(pos, right, ops.log1p(-ops.where(pos, 0.0, t)))
+
+    def right(t, r):
+        return ops.log(ops.where(pos, ops.where(far, r, t), 1.0)) - ops.where(far, math.log(math.pi) + r * r / 3.0, 0.0)
+    # a branch: the pairs of a SIMD packet mostly lie on one side of the face's edges, so most
+    # packets evaluate one logarithm, not both
+    return ops.branch(pos, right, lambda t, r: ops.log1p(-ops.where(pos, 0.0, t)), t, r)
 
 
 def _cauchy_odds(ops, x):
@@ -656,7 +660,7 @@ def _reciprocal_log_sf(ops, x):
     pos = x > 0.0
     xp = ops.where(pos, x, 0.0)
     xn = ops.where(pos, 0.0, x)
-    return ops.where(pos, -_LN2 - ops.log1p(xp), ops.log1p(-0.5 / (1.0 - xn)))
+    return ops.branch(pos, lambda xp, xn: -_LN2 - ops.log1p(xp), lambda xp, xn: ops.log1p(-0.5 / (1.0 - xn)), xp, xn)
 
 
 def _reciprocal_odds(ops, x):
