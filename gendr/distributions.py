@@ -43,6 +43,9 @@ class DistributionFamily:
     params: tuple[Param, ...] = ()
     log_sf: Callable | None = None
     log_cdf: Callable | None = None
+    #: optional ``sf(ops, x, **params)`` = 1 − F(x), relatively accurate where it is small: the
+    #: reversed variant's CDF F(−x) without exp(log_sf) (Lévy: erf where F is erfc)
+    sf: Callable | None = None
     #: optional ``cdf_and_logs(ops, x, **params)`` = ``(F, log(1 − F), log F)`` from shared work (one
     #: evaluation where the three functions would each repeat it); requires ``accurate_logs``
     cdf_and_logs: Callable | None = None
@@ -126,6 +129,8 @@ class Distribution(LearnableParams):
         f, kw = self.family, self.kwargs
         x = x + self.shift if self.shift else x
         if self.reversed:
+            if f.sf is not None:
+                return f.sf(ops, -x, **kw)
             if f.log_sf is not None:
                 return ops.exp(f.log_sf(ops, -x, **kw))
             return 1.0 - f.cdf(ops, -x, **kw)
@@ -969,6 +974,13 @@ def _levy_cdf(ops, x):
     return ops.where(pos, ops.erfc(ops.sqrt(0.5 / xs)), 0.0)
 
 
+def _levy_sf(ops, x):
+    # 1 − F = erf(√(1/(2x))): one erf, relatively accurate where small (x large)
+    pos = x > _LEVY_LO
+    xs = ops.where(pos, x, 1.0)
+    return ops.where(pos, ops.erf(ops.sqrt(0.5 / xs)), 1.0)
+
+
 def _levy_pdf(ops, x):
     pos = x > _LEVY_LO
     xs = ops.where(pos, x, 1.0)
@@ -1002,7 +1014,7 @@ def _levy_log_cdf(ops, x):
 DISTRIBUTIONS.add(DistributionFamily(
     "levy", _levy_cdf, _levy_pdf,
     support=lambda: (0.0, math.inf), tails=(BOUNDED, HEAVY),
-    log_sf=_levy_log_sf, log_cdf=_levy_log_cdf,
+    log_sf=_levy_log_sf, log_cdf=_levy_log_cdf, sf=_levy_sf,
     accurate_logs=True,
     doc="Standard Lévy: F(x) = erfc(sqrt(1/(2x))) for x > 0, 0 below; "
         "f(x) = exp(−1/(2x)) / sqrt(2π x³). Heavy right tail (1 − F ~ sqrt(2/(πx))): reversed, "

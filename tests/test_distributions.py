@@ -156,6 +156,22 @@ def test_odds_are_cdf_over_survival(d):
     np.testing.assert_allclose(d.odds(O, GRID)[m], np.exp(lcdf[m] - lsf[m]), rtol=1e-12, atol=0)
 
 
+def test_sf_is_the_survival_function():
+    """A family's ``sf`` (Lévy's erf, what the reversed variant's CDF reads) is 1 − F relatively to
+    1e-12 (float64) against exp(log(1 − F)) wherever that is a normal number, and the reversed
+    CDF is sf(−x)."""
+    from gendr.distributions import DISTRIBUTIONS
+    families = [f for f in (DISTRIBUTIONS[n] for n in DISTRIBUTIONS) if f.sf is not None]
+    assert [f.name for f in families] == ["levy"]
+    for f in families:
+        d = distribution(f.name)
+        lsf = d.log_sf(O, GRID)
+        m = lsf > -700
+        assert m.sum() > len(GRID) // 2
+        np.testing.assert_allclose(f.sf(O, GRID)[m], np.exp(lsf[m]), rtol=1e-12, atol=0)
+        np.testing.assert_array_equal(distribution(f.name, reversed=True).cdf(O, GRID), f.sf(O, -GRID))
+
+
 @pytest.mark.parametrize("d", CASES, ids=ids)
 def test_support_and_tails(d):
     lo, hi = d.support()
