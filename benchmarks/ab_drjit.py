@@ -60,11 +60,17 @@ def stats(xs):
             "stdev_ms": statistics.stdev(xs) if len(xs) > 1 else 0.0, "steps": len(xs)}
 
 
+def _spec(text):
+    """A distribution or T-conorm for the problem's config: a name, or a JSON object of keyword arguments."""
+    return json.loads(text) if text.lstrip().startswith("{") else text
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("other", help="path of the other raster.py (e.g. from git show REV:backends/gendr_drjit/raster.py)")
-    ap.add_argument("--dist", default="logistic")
-    ap.add_argument("--tconorm", default="probabilistic")
+    ap.add_argument("--dist", default="logistic", type=_spec,
+                    help='a name, or JSON keyword arguments: \'{"name": "levy", "reversed": true}\'')
+    ap.add_argument("--tconorm", default="probabilistic", type=_spec, help='a name, or JSON: \'{"name": "dombi", "p": 0.5}\'')
     ap.add_argument("--tau", type=float, default=0.01, help="width (renderer τ = width² for squared distributions)")
     ap.add_argument("--target", default="airplane", help="built-in name or paper:airplane.obj (user-supplied data)")
     ap.add_argument("--threads", type=int, default=1, help="Dr.Jit threads (torch keeps one)")

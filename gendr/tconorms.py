@@ -76,6 +76,10 @@ class TConormFamily:
     #: 1, einstein: 2, hamacher p > 0: p): a backend may sum it as log Π(1 + c·odds) for distributions
     #: with closed-form odds (Distribution.has_odds), one log per pixel instead of one per face
     odds_factor: Callable | None = None
+    #: optional ``(ops, log_odds, **params) -> g`` where the generator depends on x only through its
+    #: odds (dombi: (x/(1 − x))^p = exp(p·log odds)): a backend may evaluate it from a distribution's
+    #: closed-form log-odds (the logistic's are x) instead of from F and log(1 − F)
+    odds_generator: Callable | None = None
 
 
 TCONORMS = Registry("tconorm")
@@ -162,6 +166,13 @@ class TConorm(LearnableParams):
         if log1m_x is None:
             log1m_x = ops.log1p(-x)
         return self.family.generator(ops, x, log1m_x, **self.kwargs)
+
+    def odds_generator(self, ops, log_odds):
+        """g(x) from log(x/(1 − x)) (families with ``odds_generator`` only; see TConormFamily)."""
+        f = self.family.odds_generator
+        if f is None:
+            raise NotImplementedError(f"T-conorm {self.label()!r} has no generator in terms of the odds")
+        return f(ops, log_odds, **self.kwargs)
 
     def generator_inverse(self, ops, s):
         self._archimedean_only("additive generator")
@@ -583,6 +594,7 @@ TCONORMS.add(TConormFamily(
     params=(Param(_P, POSITIVE, doc="p → ∞: max"),),
     generator=_dombi_generator,
     generator_inverse=_dombi_inverse,
+    odds_generator=lambda ops, lo, p: ops.exp(_a(p) * lo),
     generator_at_one=_strict,
     doc="S(a, b) = 1 − 1/(1 + ((a/(1 − a))^p + (b/(1 − b))^p)^(1/p)), p > 0; generator (x/(1 − x))^p; "
         "inverse s^(1/p)/(1 + s^(1/p)).",

@@ -147,13 +147,16 @@ def test_odds_are_cdf_over_survival(d):
     odds = F/(1 − F) = exp(log F − log(1 − F)), relatively to 1e-12 (float64) wherever both logs are
     finite; a family without them says so."""
     if not d.has_odds:
-        with pytest.raises(NotImplementedError, match=re.escape(d.label())):
-            d.odds(O, GRID)
+        for fn in (d.odds, d.log_odds):
+            with pytest.raises(NotImplementedError, match=re.escape(d.label())):
+                fn(O, GRID)
         return
     lsf, lcdf = d.log_sf(O, GRID), eff_log_cdf(d, GRID)
     m = np.isfinite(lsf) & np.isfinite(lcdf) & (np.abs(lcdf - lsf) < 700)
     assert m.sum() > len(GRID) // 2
     np.testing.assert_allclose(d.odds(O, GRID)[m], np.exp(lcdf[m] - lsf[m]), rtol=1e-12, atol=0)
+    # and the log-odds (Dombi's generator reads them), absolutely to 1e-12 of their size
+    np.testing.assert_allclose(d.log_odds(O, GRID)[m], (lcdf - lsf)[m], rtol=1e-12, atol=1e-12)
 
 
 def test_sf_is_the_survival_function():

@@ -12,6 +12,7 @@ against the independent T-norm table) 1e-9.
 from __future__ import annotations
 
 import math
+import re
 import random
 
 import numpy as np
@@ -247,6 +248,24 @@ def test_odds_factor_means_log1p_of_c_times_the_odds(t):
         return
     inner = GRID[(GRID > 0) & (GRID < 1)]
     np.testing.assert_allclose(G(t, inner), np.log1p(c * inner / (1.0 - inner)), rtol=1e-12, atol=0)
+
+
+@_params(ARCH)
+def test_odds_generator_is_the_generator_in_terms_of_the_odds(t):
+    """Where a family gives its generator in terms of the log-odds (backends evaluate Dombi's as
+    exp(p·log odds) for distributions with closed-form odds), it equals the generator of x,
+    relatively to 1e-12 over (0, 1); families without one say so."""
+    if t.family.odds_generator is None:
+        with pytest.raises(NotImplementedError, match=re.escape(t.label())):
+            t.odds_generator(O, np.zeros(2))
+        return
+    inner = GRID[(GRID > 0) & (GRID < 1)]
+    log_odds = np.log(inner) - np.log1p(-inner)
+    np.testing.assert_allclose(t.odds_generator(O, log_odds), G(t, inner), rtol=1e-12, atol=0)
+
+
+def test_dombi_has_a_generator_of_the_odds():
+    assert [n for n in TCONORMS if TCONORMS[n].odds_generator is not None] == ["dombi"]
 
 
 @_params(ARCH)

@@ -620,17 +620,23 @@ def generator_terms(dist, tcn, ops, x, x_eps, x_cut=None):
     Pairs with x < x_eps = F⁻¹(eps) (coverage < eps) are culled: a test on x, so that F itself is
     never evaluated where the generator reads only log(1 − F) (dead code to Dr.Jit); so are those
     with x <= x_cut (the reference cut-off, RenderSettings.cutoff_argument). The mean (``average``)
-    sums p itself (TConorm.pair_term), culled alike, and never saturates."""
+    sums p itself (TConorm.pair_term), culled alike, and never saturates. A generator of the odds
+    alone (Dombi's) with a distribution of closed-form odds is evaluated from the log-odds (the
+    logistic's: x, so Dombi's term is one exp)."""
     if tcn.kind == MEAN:
         g = tcn.pair_term(ops, dist.cdf(ops, x))
         keep = live_pairs(x, x_eps, x_cut)
         if keep is not None:
             g = dr.select(keep, g, 0.0)
         return g, dr.zeros(dr.mask_t(x), dr.width(x))
-    p, l = dist.cdf_and_log_sf(ops, x)
-    sat = ~(l > -math.inf)
-    g = tcn.generator(ops, dr.select(sat, 0.5, p), dr.select(sat, math.log(0.5), l))
-    sat = sat | ~(g < math.inf)  # overflow: saturated too (the generator's gradient there is finite)
+    if dist.has_odds and tcn.family.odds_generator is not None:
+        g = tcn.odds_generator(ops, dist.log_odds(ops, x))
+        sat = ~(g < math.inf)  # 1 − F underflowing or g overflowing: saturated
+    else:
+        p, l = dist.cdf_and_log_sf(ops, x)
+        sat = ~(l > -math.inf)
+        g = tcn.generator(ops, dr.select(sat, 0.5, p), dr.select(sat, math.log(0.5), l))
+        sat = sat | ~(g < math.inf)  # overflow: saturated too (the generator's gradient there is finite)
     keep = live_pairs(x, x_eps, x_cut)
     if keep is not None:
         sat = sat & keep
