@@ -53,9 +53,9 @@ class DistributionFamily:
     #: tiny, so the renderer's log(1 − F) needs no log1p(−F) branch (tested against scipy/mpmath)
     accurate_logs: bool = False
     #: optional ``odds(ops, x, **params)`` = F/(1 − F), given where it is cheaper than log(1 − F)
-    #: (logistic: e^x; Cauchy, reciprocal: one division): a sum of generators log(1 + c·odds) (probabilistic, Einstein, Hamacher;
-    #: TConormFamily.odds_factor) is then log Π(1 + c·odds), one log per pixel, not one per face
-    #: (+inf where 1 − F underflows)
+    #: (logistic: e^x; Cauchy, reciprocal: one division): a sum of generators log(1 + c·odds)
+    #: (probabilistic, Einstein, Hamacher; TConormFamily.odds_factor) is then log Π(1 + c·odds), one
+    #: log per pixel, not one per face (+inf where 1 − F underflows)
     odds: Callable | None = None
     #: optional ``log_odds(ops, x, **params)`` = log(F/(1 − F)) where cheaper than log(odds) (the
     #: logistic's: x); families with ``odds`` and without it take log(odds)
