@@ -217,6 +217,38 @@ def _dot(a, b):
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
+def _vertex_sums(T, values, slots, n):
+    """Σ of each per-face array of ``values`` into n vertex slots (one index array per corner), the
+    same bits with any thread count and summation order: each term becomes a 64-bit integer in
+    units of 2^−k (k from the largest |term| and the most terms per slot, so that no sum
+    overflows), the integers add exactly, and each sum is rounded to Float once (terms round to the
+    grid: absolute error <= 2^−(k+1) each, ~2^−62 of the largest possible sum). A float
+    scatter-add's order varies across threads, which moved smooth-shaded colours by an ulp from run
+    to run. Derivatives follow the float scatter-add (dr.replace_grad)."""
+    Float, Int64, F64 = T.Float, T.module.Int64, T.module.Float64
+    count = dr.zeros(T.UInt32, n)
+    for idx in slots:
+        dr.scatter_reduce(dr.ReduceOp.Add, count, T.UInt32(1), idx)
+    most = F64(dr.max(count))
+    out = []
+    for value in values:
+        vd = F64(dr.detach(value))
+        bound = dr.maximum(dr.max(dr.abs(vd)) * most, 1e-300)
+        scale = dr.exp2(61.0 - dr.ceil(dr.log2(bound)))  # |Σ| <= bound <= 2^61 / scale
+        q = Int64(dr.round(vd * scale))
+        total = dr.zeros(Int64, n)
+        for idx in slots:
+            dr.scatter_reduce(dr.ReduceOp.Add, total, q, idx)
+        exact = Float(F64(total) / scale)
+        if dr.grad_enabled(value):
+            acc = dr.zeros(Float, n)
+            for idx in slots:
+                dr.scatter_reduce(dr.ReduceOp.Add, acc, value, idx)
+            exact = dr.replace_grad(exact, acc)
+        out.append(exact)
+    return out
+
+
 def _shading_data(settings, camera, ops, T, Pf, H, W, verts, Bv, V, B, F, b_f, f_f, faces_u, vid, v, colors, per_face,
                   tex=None, normals_out=False):
     """21 per-face arrays: barycentric affine coefficients a(3), b(3), c0(3), view depths (3), lit
@@ -273,12 +305,8 @@ def _shading_data(settings, camera, ops, T, Pf, H, W, verts, Bv, V, B, F, b_f, f
     if per_face:
         normals = [fn] * 3
     else:
-        vn = []
-        for c in range(3):
-            acc = dr.zeros(Float, n)
-            for i in range(3):
-                dr.scatter_reduce(dr.ReduceOp.Add, acc, fn[c], b_f * V + vid[i])
-            vn.append(acc)
+        slots = [b_f * V + vid[i] for i in range(3)]
+        vn = _vertex_sums(T, fn, slots, n)
         normals = [tuple(dr.gather(Float, vn[c], b_f * V + vid[i]) for c in range(3)) for i in range(3)]
     L = settings.light_direction
     ln = math.sqrt(sum(c * c for c in L))
