@@ -667,25 +667,25 @@ DISTRIBUTIONS.add(DistributionFamily(
 
 # --- reciprocal ---------------------------------------------------------------------------------
 
-def _reciprocal_sf(ops, x):
+def _reciprocal_sides(ops, x):
+    """(x > 0, x there else 0, x elsewhere else 0): each side's formula sees only its own x."""
     pos = x > 0.0
-    xp = ops.where(pos, x, 0.0)
-    xn = ops.where(pos, 0.0, x)
+    return pos, ops.where(pos, x, 0.0), ops.where(pos, 0.0, x)
+
+
+def _reciprocal_sf(ops, x):
+    pos, xp, xn = _reciprocal_sides(ops, x)
     return ops.where(pos, 0.5 / (1.0 + xp), 1.0 - 0.5 / (1.0 - xn))
 
 
 def _reciprocal_log_sf(ops, x):
-    pos = x > 0.0
-    xp = ops.where(pos, x, 0.0)
-    xn = ops.where(pos, 0.0, x)
+    pos, xp, xn = _reciprocal_sides(ops, x)
     return ops.branch(pos, lambda xp, xn: -_LN2 - ops.log1p(xp), lambda xp, xn: ops.log1p(-0.5 / (1.0 - xn)), xp, xn)
 
 
 def _reciprocal_odds(ops, x):
     # F/(1 − F) = 1 + 2x for x > 0 and 1/(1 − 2x) below: exact up to rounding, no logarithm
-    pos = x > 0.0
-    xp = ops.where(pos, x, 0.0)
-    xn = ops.where(pos, 0.0, x)
+    pos, xp, xn = _reciprocal_sides(ops, x)
     return ops.where(pos, 1.0 + 2.0 * xp, 1.0 / (1.0 - 2.0 * xn))
 
 
@@ -981,17 +981,21 @@ DISTRIBUTIONS.add(DistributionFamily(
 _LEVY_LO = 5e-4  # F(x) = erfc(sqrt(1/(2x))) < erfc(31.6) ≈ 1e-436: exactly 0 in float64 below this
 
 
-def _levy_cdf(ops, x):
+def _levy_z(ops, x):
+    """(x > _LEVY_LO, z = √(1/(2x)) there, else 1/√2)."""
     pos = x > _LEVY_LO
-    xs = ops.where(pos, x, 1.0)
-    return ops.where(pos, ops.erfc(ops.sqrt(0.5 / xs)), 0.0)
+    return pos, ops.sqrt(0.5 / ops.where(pos, x, 1.0))
+
+
+def _levy_cdf(ops, x):
+    pos, z = _levy_z(ops, x)
+    return ops.where(pos, ops.erfc(z), 0.0)
 
 
 def _levy_sf(ops, x):
     # 1 − F = erf(√(1/(2x))): one erf, relatively accurate where small (x large)
-    pos = x > _LEVY_LO
-    xs = ops.where(pos, x, 1.0)
-    return ops.where(pos, ops.erf(ops.sqrt(0.5 / xs)), 1.0)
+    pos, z = _levy_z(ops, x)
+    return ops.where(pos, ops.erf(z), 1.0)
 
 
 def _levy_pdf(ops, x):
@@ -1001,8 +1005,7 @@ def _levy_pdf(ops, x):
 
 
 def _levy_log_sf(ops, x):
-    pos = x > _LEVY_LO
-    z = ops.sqrt(0.5 / ops.where(pos, x, 1.0))
+    pos, z = _levy_z(ops, x)
     small = z < 1.0  # 1 − F = erf(z): log erf(z) for small z, log1p(−erfc z) for large z
     z_small = ops.where(small, z, 0.5)
     z_large = ops.where(small, 1.0, z)

@@ -163,7 +163,6 @@ def test_sf_is_the_survival_function():
     """A family's ``sf`` (Lévy's erf, what the reversed variant's CDF reads) is 1 − F relatively to
     1e-12 (float64) against exp(log(1 − F)) wherever that is a normal number, and the reversed
     CDF is sf(−x)."""
-    from gendr.distributions import DISTRIBUTIONS
     families = [f for f in (DISTRIBUTIONS[n] for n in DISTRIBUTIONS) if f.sf is not None]
     assert [f.name for f in families] == ["levy"]
     for f in families:

@@ -348,8 +348,9 @@ def test_dealt_lanes_change_no_value(monkeypatch, layout, tcn):
 def test_face_major_pixel_groups_change_no_value(monkeypatch, size, double):
     """The face-major backward walks a row in groups of FACE_GROUP pixels read with one packet
     gather, starting at multiples of the group (the columns left of the box lie beyond the culling
-    radius, so the pair's culling test drops them); an odd image width walks single pixels. Groups of 2 and 4 give the images and gradients of single
-    pixels bit for bit (the live pairs are visited in the same order; 1 thread)."""
+    radius, so the pair's culling test drops them); an odd image width walks single pixels. Groups
+    of 2 and 4 give the images and gradients of single pixels bit for bit (the live pairs are
+    visited in the same order; 1 thread)."""
     monkeypatch.setattr(R, "FACE_MAJOR_RADIUS_PX", math.inf)
     threads = dr.thread_count()
     dr.set_thread_count(1)
