@@ -83,14 +83,55 @@ class Types:
 
 
 def _expand_params(P, bidx, Bc, T):
-    """Camera arrays (width Bc or 1) gathered to lanes whose batch index is ``bidx``."""
+    """Camera arrays (width Bc or 1) gathered to lanes whose batch index is ``bidx``. Width-1 arrays
+    that carry gradients are repeated to the lanes' width by one :class:`_Broadcast` (the camera
+    math then runs per lane): Dr.Jit's implicit broadcast would sum the gradient of every derived
+    width-1 value (basis, eye: twelve) in a kernel and a reduction of its own."""
     out = {}
     for k, v in P.items():
         if isinstance(v, tuple):
             out[k] = tuple(c if Bc == 1 else dr.gather(T.Float, c, bidx) for c in v)
         else:
             out[k] = v if Bc == 1 else dr.gather(T.Float, v, bidx)
+    if Bc == 1:
+        leaves = [(k, i) for k, v in out.items() for i, c in enumerate(v if isinstance(v, tuple) else (v,))
+                  if dr.grad_enabled(c)]
+        if leaves:
+            wide = dr.custom(_Broadcast, tuple(_param_at(out, k, i) for k, i in leaves), dr.width(bidx))
+            for (k, i), w in zip(leaves, wide):
+                out[k] = tuple(w if j == i else c for j, c in enumerate(out[k])) if isinstance(out[k], tuple) else w
     return out
+
+
+def _param_at(P, k, i):
+    return P[k][i] if isinstance(P[k], tuple) else P[k]
+
+
+class _Broadcast(dr.CustomOp):
+    """Width-1 arrays repeated to width ``n``; the adjoint sums all their gradients in one reduction."""
+
+    def eval(self, values, n):
+        self.n = n
+        return tuple(v + dr.zeros(type(v), n) for v in values)
+
+    def forward(self):
+        raise NotImplementedError("forward-mode AD of the Dr.Jit camera broadcast is not implemented")
+
+    def backward(self):
+        n, grads = self.n, self.grad_out()
+        Float = type(grads[0])
+        grads = [g if dr.width(g) == n else dr.zeros(Float, n) + g for g in grads]
+        dr.schedule(*grads)
+        lane = dr.arange(dr.uint32_array_t(Float), n * len(grads))
+        row, col = lane // n, lane % n
+        stacked = dr.zeros(Float, dr.width(lane))
+        for j, g in enumerate(grads):
+            stacked = dr.select(row == j, dr.gather(Float, g, col), stacked)
+        sums = dr.block_sum(stacked, n)
+        self.set_grad_in("values", tuple(dr.gather(Float, sums, j) for j in range(len(grads))))
+
+    def name(self):
+        return "gendr camera broadcast"
 
 
 # ---------------------------------------------------------------------------------------------
@@ -180,17 +221,19 @@ def prepare_faces(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, color
     area2 = sum(dr.detach(X[k]) * dr.detach(Y[(k + 1) % K]) - dr.detach(X[(k + 1) % K]) * dr.detach(Y[k]) for k in range(K))
     fc.orient = Float(dr.select(area2 > 0, 1.0, dr.select(area2 < 0, -1.0, 0.0)))
     fc.front = area2 > 0
-    fc.packed = _pack_corners(T, fc.Xd, fc.Yd, fc.orient)
     # the loops and the binning gather these: evaluated together, in one kernel (not one each)
-    dr.schedule(*X, *Y, fc.orient, fc.front, fc.packed)
+    dr.schedule(*X, *Y, fc.orient, fc.front)
+    fc.packed = _pack_corners(T, fc.Xd, fc.Yd, fc.orient)
+    dr.schedule(fc.packed)
     if fc.ad:  # corners flattened (face, corner) for the linearised distance (see signed_distance)
         lane = dr.arange(UInt32, m * K)
         kf, ff = lane % K, lane // K
         fc.Xall = dr.zeros(Float, m * K)
         fc.Yall = dr.zeros(Float, m * K)
-        for k in range(K):
-            fc.Xall = dr.select(kf == k, dr.gather(Float, X[k], ff), fc.Xall)
-            fc.Yall = dr.select(kf == k, dr.gather(Float, Y[k], ff), fc.Yall)
+        for k in range(K):  # (one lane reads each corner: the adjoint scatters need no atomics)
+            sel = kf == k
+            fc.Xall = dr.select(sel, dr.gather(Float, X[k], ff, sel, mode=dr.ReduceMode.Permute), fc.Xall)
+            fc.Yall = dr.select(sel, dr.gather(Float, Y[k], ff, sel, mode=dr.ReduceMode.Permute), fc.Yall)
     fc.near, fc.far = camera.near, camera.far
     fc.shade = None
     fc.tex = None if tex is None else tex[:5]
@@ -770,14 +813,16 @@ def _pack_corners(T, Xd, Yd, orient):
     """One flat array of the detached corners and the orientation, face after face (X_0..X_{K−1},
     Y_0..Y_{K−1}, orient, padding to 8 or 16 entries), so that a loop reads a face with one packet
     gather (a vector load per lane and a transpose) instead of 2K + 1 gathers: forward loop of the
-    paper shape step −10 to −12 % at τ = 0.01 and 0.003 (toggled in one process, 1 thread)."""
+    paper shape step −10 to −12 % at τ = 0.01 and 0.003 (toggled in one process, 1 thread).
+    Gathered, not scattered: each scatter into one array evaluates the previous one (seven kernels,
+    each recomputing the projection; now one, reading the columns once they are evaluated)."""
     cols = [*Xd, *Yd, orient]
     n = _packed_width(len(Xd))
-    m = dr.width(orient)
-    packed = dr.zeros(T.Float, n * m)
-    base = dr.arange(T.UInt32, m) * n
-    for j, c in enumerate(cols):
-        dr.scatter(packed, c, base + j)
+    lane = dr.arange(T.UInt32, n * dr.width(orient))
+    face, j = lane // n, lane % n
+    packed = dr.zeros(T.Float, dr.width(lane))
+    for k, c in enumerate(cols):
+        packed = dr.select(j == k, dr.gather(T.Float, c, face), packed)
     return packed
 
 
@@ -1025,7 +1070,7 @@ class AlphaSum(dr.CustomOp):
             return (gt, gp, gk, *acc)
 
         loop = self._face_loop if fc.face_major else self._pixel_loop
-        gt, gp, gk = loop(pair, delta, want_xy, x_eps, x_cut, tau, gX, gY)
+        gt, gp, gk, gX, gY = loop(pair, delta, want_xy, x_eps, x_cut, tau, gX, gY)
         if want_xy:
             self.set_grad_in("Xall", gX)
             self.set_grad_in("Yall", gY)
@@ -1088,12 +1133,14 @@ class AlphaSum(dr.CustomOp):
 
             acc = list(dr.while_loop((dr.zeros(T.UInt32, m), *(dr.zeros(Float, m) for _ in acc)),
                                      lambda c, *t: c < C, add_chunk)[1:])
-        if want_xy:
-            corner0 = dr.arange(T.UInt32, m) * K
+        if want_xy:  # gathered, not scattered (each scatter into gX would evaluate the one before)
+            dr.schedule(*acc)
+            lane = dr.arange(T.UInt32, m * K)
+            face, corner = lane // K, lane % K
             for k in range(K):
-                dr.scatter(gX, acc[2 * k], corner0 + k)
-                dr.scatter(gY, acc[2 * k + 1], corner0 + k)
-        return gt, gp, gk
+                gX = dr.select(corner == k, dr.gather(Float, acc[2 * k], face), gX)
+                gY = dr.select(corner == k, dr.gather(Float, acc[2 * k + 1], face), gY)
+        return gt, gp, gk, gX, gY
 
     def _pixel_loop(self, pair, delta, want_xy, x_eps, x_cut, tau, gX, gY):
         """Pixel-major backward: the strip lanes of the forward loop over their tiles' faces,
@@ -1125,7 +1172,7 @@ class AlphaSum(dr.CustomOp):
         zeros = [dr.zeros(Float, pix.n) for _ in range(3)]
         _, _, gt, gp, gk = dr.while_loop((*pix.start(), *zeros), lambda w, bits, *acc: bits != 0, body,
                                          labels=("w", "bits", "gt", "gp", "gk"))
-        return gt, gp, gk
+        return gt, gp, gk, gX, gY
 
     def name(self):
         return "gendr alpha sum"
