@@ -8,7 +8,7 @@ from gendr_experiments.common import (axis_angle_to_matrix, config_hash, flatten
                                       laplacian_loss, log_tau_schedule, mesh_laplacian, random_rotation,
                                       rotation_about, rotation_angle_deg, soft_iou_loss)
 from gendr_experiments.pose import run_pose
-from gendr_experiments.shape import SphereDeformer, run_shape
+from gendr_experiments.shape import ShapeProblem, SphereDeformer, run_shape
 from gendr.scenes import icosphere
 
 
@@ -113,6 +113,29 @@ def test_shape_optimisation_lowers_the_loss():
     assert res["steps_done"] == 25 and not res["nonfinite"]
     assert res["soft_loss_last"] < 0.8 * res["soft_loss_first"]
     assert res["metric"] < res["hard_iou_loss_initial"] - 0.1
+
+
+def test_a_nonfinite_gradient_ends_the_shape_run_and_leaves_the_mesh(monkeypatch):
+    # (the paper grid's reversed squared exponential with Dombi(4) and SS(-4) diverge so: a finite
+    # loss, an infinite gradient, which Adam turned into a NaN mesh and the next render refused)
+    import math
+    cfg = dict(target="airplane", steps=4, image_size=16, views=2, lr=0.05, tau=0.02, metric="best")
+    prob = ShapeProblem(cfg)
+    assert math.isfinite(prob.step(0))
+    before = [p.detach().clone() for p in prob.model.parameters()]
+    prob.model.displace.register_hook(lambda g: g * math.inf)
+    assert math.isnan(prob.step(1))
+    assert all(torch.equal(p.detach(), q) for p, q in zip(prob.model.parameters(), before))
+
+    init = ShapeProblem.__init__
+
+    def poisoned(self, *a, **k):
+        init(self, *a, **k)
+        self.model.displace.register_hook(lambda g: g * math.inf)
+    monkeypatch.setattr(ShapeProblem, "__init__", poisoned)
+    res = run_shape(cfg)
+    assert res["nonfinite"] and res["steps_done"] == 0 and math.isnan(res["hard_iou_loss_final"])
+    assert res["metric"] == res["hard_iou_loss_initial"] and res["best_step"] == 0
 
 
 def test_shape_optimisation_grid_instance_and_mesh_file(tmp_path):

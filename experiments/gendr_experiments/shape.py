@@ -200,8 +200,9 @@ class ShapeProblem:
 
     def step(self, step_index: int, callback=None) -> float:
         """One step: render, loss, backward, Adam. Returns the soft IoU loss, or NaN (and makes no
-        update) when the total loss is not finite. With ``metric="best"`` it first records the hard
-        IoU loss of the mesh it renders. ``callback`` as in :func:`run_shape`."""
+        update) when the total loss or a gradient is not finite (Adam would turn the mesh into NaN).
+        With ``metric="best"`` it first records the hard IoU loss of the mesh it renders.
+        ``callback`` as in :func:`run_shape`."""
         cfg, model = self.cfg, self.model
         v = model()
         if cfg["metric"] == "best":
@@ -214,6 +215,8 @@ class ShapeProblem:
             return float("nan")
         self.opt.zero_grad()
         loss.backward()
+        if not all(bool(torch.isfinite(p.grad).all()) for p in model.parameters()):
+            return float("nan")
         self.opt.step()
         if callback is not None:
             callback(step_index, v.detach(), sil.detach(), float(loss.detach()))
@@ -226,7 +229,8 @@ def run_shape(config: dict | None = None, *, callback=None, backend_options=None
     ``callback(step, vertices, silhouettes, loss)`` is called every step (e.g. to record a GIF).
     ``backend_options``: see :class:`ShapeProblem`.
     Returns a dict: ``metric`` (the config's metric: ``hard_iou_loss_final`` or ``hard_iou_loss_best``,
-    lower is better; NaN when a step went non-finite), ``best_step``, ``hard_iou_loss_initial``,
+    lower is better; a step whose loss or gradient is not finite ends the run, ``nonfinite``: the
+    final loss is then NaN, the best the lowest of the meshes rendered before), ``best_step``, ``hard_iou_loss_initial``,
     ``soft_loss_first``, ``soft_loss_last``, ``seconds``, ``data`` (digests of the mesh files), and
     ``final_vertices`` / ``faces`` of the final mesh.
     """
