@@ -116,3 +116,17 @@ def test_no_faces_gives_the_background(blend):
         V.clone().requires_grad_(True), f, CAM).detach() for be in ("torch", "drjit")]
     assert imgs[0].shape == imgs[1].shape == (1, 8, 10, 4)
     assert float((imgs[0] - imgs[1]).abs().max()) == 0.0
+
+
+@pytest.mark.parametrize("case", ["no faces", "heaviside or"])
+def test_an_image_no_gradient_reaches_is_still_differentiable(case):
+    """As with the torch backend, ``loss.backward()`` works when no gradient reaches the inputs (an
+    empty mesh; heaviside with "or" and no RGB): the vertices get no gradient instead of an error."""
+    f = torch.zeros(0, 3, dtype=torch.long) if case == "no faces" else F
+    kw = dict(distribution="heaviside", tconorm="or", blend=None) if case == "heaviside or" else {}
+    for be in ("torch", "drjit"):
+        v = V.clone().requires_grad_(True)
+        img = gendr.Renderer(backend=be, image_size=8, **kw).render(v, f, CAM)
+        assert img.requires_grad, be
+        img.sum().backward()
+        assert v.grad is None or float(v.grad.abs().max()) == 0.0, be

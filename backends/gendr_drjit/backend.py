@@ -84,10 +84,9 @@ def _bridge():
                 ctx.inputs, ctx.output, ctx.T = inputs, out, T
                 ctx.device = tensors[0].device if tensors else None
                 res = dr.detach(out).torch()
-                res = res.to(ctx.device) if ctx.device is not None else res
-                if not dr.grad_enabled(out):  # piecewise-constant instances (heaviside, "or", no RGB)
-                    ctx.mark_non_differentiable(res)
-                return res
+                # (differentiable even where no gradient reaches the inputs — heaviside with "or"
+                # and no RGB, an empty mesh —, as the torch backend's: backward then gives None)
+                return res.to(ctx.device) if ctx.device is not None else res
 
             @staticmethod
             @torch.autograd.function.once_differentiable
