@@ -171,16 +171,21 @@ class Distribution(LearnableParams):
     def _log_sf(self, ops, x, F):
         f, kw = self.family, self.kwargs
         x = x + self.shift if self.shift else x
-        if self.reversed:  # 1 − F_rev(x) = F(−x)
-            upper = f.log_cdf(ops, -x, **kw) if f.log_cdf is not None else ops.log(f.cdf(ops, -x, **kw))
-        elif f.log_sf is not None:
-            upper = f.log_sf(ops, x, **kw)
-        else:
-            upper = ops.log1p(-f.cdf(ops, x, **kw))
-        if f.accurate_logs:
-            return upper
+
+        def upper(_, x):
+            if self.reversed:  # 1 − F_rev(x) = F(−x)
+                return f.log_cdf(ops, -x, **kw) if f.log_cdf is not None else ops.log(f.cdf(ops, -x, **kw))
+            if f.log_sf is not None:
+                return f.log_sf(ops, x, **kw)
+            return ops.log1p(-f.cdf(ops, x, **kw))
+        # where F < 1/2, log1p(−F) from the F already computed; a branch, so that packets of such
+        # lanes skip the family's formula. Families with accurate logs use theirs everywhere, except
+        # reversed ones whose F is their own accurate 1 − F (``sf``: reversed Lévy's far field then
+        # needs one erf per pair, not two)
+        if f.accurate_logs and not (self.reversed and f.sf is not None):
+            return upper(F, x)
         lower = F < 0.5
-        return ops.where(lower, ops.log1p(-ops.where(lower, F, 0.0)), upper)
+        return ops.branch(lower, lambda F_, x_: ops.log1p(-F_), upper, ops.where(lower, F, 0.0), x)
 
     @property
     def has_odds(self) -> bool:
