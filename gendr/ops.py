@@ -23,6 +23,8 @@ Members every namespace provides (all elementwise, broadcasting like NumPy):
 ``full_like(x, v)`` an array shaped like ``x`` filled with the Python float ``v``
 ``pi inf``         Python floats
 ``detach(x)``      ``x`` without gradient tracking (NumPy: ``x`` itself)
+``needs_grad(*xs)`` whether a gradient may flow through any of ``xs`` (NumPy: False), so that a
+                   formula guarding its gradient can skip the guard's second evaluation
 ``with_derivative(value, derivative, x)``  ``value(x)`` whose derivative w.r.t. ``x`` is
                    ``derivative(x)``; the backend must not differentiate through ``value`` (used
                    where ``value`` is an iterative series, e.g. the incomplete gamma function)
@@ -108,6 +110,10 @@ class NumpyOps:
     @staticmethod
     def detach(x):
         return x
+
+    @staticmethod
+    def needs_grad(*xs):
+        return False
 
     @staticmethod
     def asarray(x):

@@ -324,9 +324,13 @@ def _inf_guard(ops, f, args, safe):
     """f(*args) where that is finite, else +inf with a zero gradient.
 
     The arguments are replaced by the finite ``safe`` values where f would be inf/NaN before f is
-    evaluated again, so no 0·inf = NaN reaches autograd (the double-where trick).
+    evaluated again, so no 0·inf = NaN reaches autograd (the double-where trick); without a
+    gradient (e.g. Dr.Jit's forward loops) f is evaluated once, to the same values.
     """
-    ok = f(*args) < math.inf
+    value = f(*args)
+    ok = value < math.inf
+    if not ops.needs_grad(*args):
+        return ops.where(ok, value, math.inf)
     safe_args = [ops.where(ok, a, v) for a, v in zip(args, safe)]
     return ops.where(ok, f(*safe_args), math.inf)
 

@@ -152,3 +152,29 @@ def test_drjit_softplus_equals_log1p_of_exp(T):
         dr.backward(dr.sum(fn(xg) * T(np.linspace(-1.0, 2.0, len(x)))))
         grads.append(np.asarray(dr.grad(xg), dtype=np.float64))
     assert _same(*grads)
+
+
+def test_needs_grad_and_the_single_evaluation_of_guarded_generators():
+    """``needs_grad`` is True exactly where a gradient can flow (torch requires_grad, Dr.Jit AD);
+    without one, a guarded generator (Schweizer–Sklar's expm1(p·log(1 − x))) is evaluated once, to
+    the values of the twice-evaluated gradient guard, inf where it overflows included."""
+    torch = pytest.importorskip("torch")
+    from gendr_torch.ops import torch_ops
+    assert not numpy_ops.needs_grad(np.ones(3), 1.0)
+    t = torch.ones(3)
+    assert not torch_ops.needs_grad(t, 1.0) and torch_ops.needs_grad(t, t.clone().requires_grad_(True))
+    x = torch.tensor([0.0, 1e-8, 0.3, 0.9, 1.0 - 1e-7, 1.0], dtype=torch.float64)
+    ss = gendr.tconorm("schweizer_sklar", p=-4.0)
+    lg = torch.log1p(-x).requires_grad_(True)  # the generator reads log(1 − x)
+    with_grad = ss.generator(torch_ops, x, lg)
+    without = ss.generator(torch_ops, x, torch.log1p(-x))
+    assert torch.equal(with_grad.detach(), without) and torch.isinf(without[-1])
+    with_grad.sum().backward()
+    assert torch.isfinite(lg.grad).all() and lg.grad[-1] == 0.0
+    dr_ = pytest.importorskip("drjit")
+    from drjit.llvm.ad import Float64
+    from gendr_drjit.ops import DrJitOps
+    d = Float64(x.numpy())
+    assert not DrJitOps(Float64).needs_grad(d, 1.0)
+    dr_.enable_grad(d)
+    assert DrJitOps(Float64).needs_grad(1.0, d)

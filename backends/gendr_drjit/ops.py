@@ -69,6 +69,10 @@ class DrJitOps:
             a = self.Float(a)
         return dr.select(c, a, b)
 
+    @staticmethod
+    def needs_grad(*xs):
+        return any(isinstance(x, dr.ArrayBase) and dr.grad_enabled(x) for x in xs)
+
     def branch(self, c, if_true, if_false, *args):
         # a symbolic conditional: in a loop kernel, a SIMD packet (or GPU warp) none of whose lanes
         # takes a side jumps over it; lanes get exactly what the select of both would give them.

@@ -66,6 +66,10 @@ class TorchOps:
         return torch.where(c, a, b)  # accepts Python scalars for a or b
 
     @staticmethod
+    def needs_grad(*xs):
+        return any(isinstance(x, torch.Tensor) and x.requires_grad for x in xs)
+
+    @staticmethod
     def branch(c, if_true, if_false, *args):
         return select_both(torch.where, c, if_true, if_false, args)
 
