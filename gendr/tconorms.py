@@ -320,31 +320,37 @@ def _pow0(ops, x, e):
     return ops.where(pos, ops.where(pos, x, 1.0) ** e, 0.0)
 
 
-def _inf_guard(ops, f, args, safe):
+def _inf_guard(ops, f, args, safe, p=None):
     """f(*args) where that is finite, else +inf with a zero gradient.
 
     The arguments are replaced by the finite ``safe`` values where f would be inf/NaN before f is
     evaluated again, so no 0·inf = NaN reaches autograd (the double-where trick); without a
-    gradient (e.g. Dr.Jit's forward loops) f is evaluated once, to the same values.
+    gradient (e.g. Dr.Jit's forward loops: no argument needs one and f reads no learnable ``p``)
+    f is evaluated once, to the same values.
     """
     value = f(*args)
     ok = value < math.inf
-    if not ops.needs_grad(*args):
+    if not (ops.needs_grad(*args) or isinstance(p, Learnable)):
         return ops.where(ok, value, math.inf)
     safe_args = [ops.where(ok, a, v) for a, v in zip(args, safe)]
     return ops.where(ok, f(*safe_args), math.inf)
 
 
-def _split_half(ops, x, l, lower, upper, at=0.5):
+def _split_half(ops, x, l, lower, upper, at=0.5, p=None):
     """``lower(x, l)`` for x < ``at``, ``upper(x, l)`` for x >= ``at`` (l = log(1 − x), 0 < at < 1).
 
     Each branch only ever sees inputs from its own side (the other side is replaced by a safe point),
-    so a branch that would be inf/NaN outside its range cannot poison the gradient.
+    so a branch that would be inf/NaN outside its range cannot poison the gradient. An
+    ``ops.branch`` (a Dr.Jit packet whose lanes are all on one side skips the other), unless the
+    sides read a learnable parameter ``p`` through their closures: then a where of both, since a
+    Dr.Jit branch would take it for a constant.
     """
     lo = x < at
     xa, la = ops.where(lo, x, 0.0), ops.where(lo, l, 0.0)
     xb, lb = ops.where(lo, at, x), ops.where(lo, math.log1p(-at), l)
-    return ops.where(lo, lower(xa, la), upper(xb, lb))
+    if isinstance(p, Learnable):
+        return ops.where(lo, lower(xa, la), upper(xb, lb))
+    return ops.branch(lo, lambda xa, la, xb, lb: lower(xa, la), lambda xa, la, xb, lb: upper(xb, lb), xa, la, xb, lb)
 
 
 def _split_at(ops, s, at, lower, upper):
@@ -455,7 +461,7 @@ def _hamacher_generator(ops, x, l, p):
     return _split_half(
         ops, x, l,
         lambda x, l: ops.log1p(_a(p) * x * ops.exp(-l)),            # x < 1/2: exp(−l) <= 2
-        lambda x, l: ops.softplus(log_p + ops.log(x) - l))      # x >= 1/2: log-space, no overflow
+        lambda x, l: ops.softplus(log_p + ops.log(x) - l), p=p)  # x >= 1/2: log-space, no overflow
 
 
 def _hamacher_inverse(ops, s, p):
@@ -504,7 +510,7 @@ def _frank_generator(ops, x, l, p):
     else:
         at = max(0.5, 1.0 + 1.0 / qf)
         lower = lambda x, l: -ops.log1p(ops.exp(q * (1.0 - x)) * ops.expm1(q * x) / (1.0 - _a(p)))  # noqa: E731
-    return _split_half(ops, x, l, lower, lambda x, l: -l - c - _log_expm1_ratio(ops, q * ops.exp(l)), at)
+    return _split_half(ops, x, l, lower, lambda x, l: -l - c - _log_expm1_ratio(ops, q * ops.exp(l)), at, p)
 
 
 def _frank_inverse(ops, s, p):
@@ -561,9 +567,9 @@ TCONORMS.add(TConormFamily(
     "aczel_alsina", ARCHIMEDEAN,
     binary=_aczel_binary,
     params=(Param(_P, POSITIVE, doc="p = 1: probabilistic; p → ∞: max"),),
-    generator=lambda ops, x, log1m_x, p: _inf_guard(ops, lambda l: _pow0(ops, -l, p), (log1m_x,), (_LOG_HALF,)),
+    generator=lambda ops, x, log1m_x, p: _inf_guard(ops, lambda l: _pow0(ops, -l, p), (log1m_x,), (_LOG_HALF,), p),
     generator_inverse=lambda ops, s, p: -ops.expm1(
-        -_inf_guard(ops, lambda s: _pow0(ops, s, _recip(p)), (s,), (1.0,))),
+        -_inf_guard(ops, lambda s: _pow0(ops, s, _recip(p)), (s,), (1.0,), p)),
     generator_at_one=_strict,
     doc="S(a, b) = 1 − exp(−((−log(1 − a))^p + (−log(1 − b))^p)^(1/p)), p > 0; generator (−log(1 − x))^p; "
         "inverse 1 − exp(−s^(1/p)).",
@@ -581,7 +587,8 @@ def _dombi_generator(ops, x, l, p):
     return _split_half(
         ops, x, l,
         lambda x, l: _pow0(ops, x, p) * ops.exp(-_a(p) * l),
-        lambda x, l: _inf_guard(ops, lambda x, l: ops.exp(_a(p) * (ops.log(x) - l)), (x, l), (0.5, _LOG_HALF)))
+        lambda x, l: _inf_guard(ops, lambda x, l: ops.exp(_a(p) * (ops.log(x) - l)), (x, l), (0.5, _LOG_HALF), p),
+        p=p)
 
 
 def _dombi_inverse(ops, s, p):
@@ -616,7 +623,7 @@ TCONORMS.add(TConormFamily(
     "schweizer_sklar", ARCHIMEDEAN,
     binary=_schweizer_sklar_binary,
     params=(Param(_P, NEGATIVE, doc="p = −1: hamacher p = 0; p → 0: probabilistic; p → −∞: max"),),
-    generator=lambda ops, x, log1m_x, p: _inf_guard(ops, lambda l: ops.expm1(_a(p) * l), (log1m_x,), (_LOG_HALF,)),
+    generator=lambda ops, x, log1m_x, p: _inf_guard(ops, lambda l: ops.expm1(_a(p) * l), (log1m_x,), (_LOG_HALF,), p),
     generator_inverse=lambda ops, s, p: -ops.expm1(ops.log1p(s) / _a(p)),
     generator_at_one=_strict,
     doc="S(a, b) = 1 − ((1 − a)^p + (1 − b)^p − 1)^(1/p), p < 0; generator (1 − x)^p − 1 = "

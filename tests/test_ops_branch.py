@@ -178,3 +178,19 @@ def test_needs_grad_and_the_single_evaluation_of_guarded_generators():
     assert not DrJitOps(Float64).needs_grad(d, 1.0)
     dr_.enable_grad(d)
     assert DrJitOps(Float64).needs_grad(1.0, d)
+
+
+@pytest.mark.parametrize("family,p", [("schweizer_sklar", -4.0), ("aczel_alsina", 4.0), ("dombi", 4.0)])
+def test_a_learnable_p_keeps_the_guard_where_the_inputs_need_no_gradient(family, p):
+    """A generator that overflows and reads a learnable p: its p-gradient stays finite (zero where
+    the generator is inf) also when x and log(1 − x) carry no gradient (the single evaluation
+    would give 0·inf = NaN there)."""
+    torch = pytest.importorskip("torch")
+    from gendr_torch.ops import torch_ops
+    pt = torch.tensor(p, dtype=torch.float64, requires_grad=True)
+    t = gendr.tconorm(family, p=pt)
+    x = torch.tensor([0.1, 0.6, 1.0 - 1e-12, 1.0], dtype=torch.float64)
+    g = t.generator(torch_ops, x, torch.log1p(-x))
+    assert torch.isinf(g[-1])
+    g[torch.isfinite(g)].sum().backward()
+    assert torch.isfinite(pt.grad)
