@@ -94,17 +94,13 @@ def _expand_params(P, bidx, Bc, T):
         else:
             out[k] = v if Bc == 1 else dr.gather(T.Float, v, bidx)
     if Bc == 1:
-        leaves = [(k, i) for k, v in out.items() for i, c in enumerate(v if isinstance(v, tuple) else (v,))
+        leaves = [(k, i, c) for k, v in out.items() for i, c in enumerate(v if isinstance(v, tuple) else (v,))
                   if dr.grad_enabled(c)]
         if leaves:
-            wide = dr.custom(_Broadcast, tuple(_param_at(out, k, i) for k, i in leaves), dr.width(bidx))
-            for (k, i), w in zip(leaves, wide):
+            wide = dr.custom(_Broadcast, tuple(c for _, _, c in leaves), dr.width(bidx))
+            for (k, i, _), w in zip(leaves, wide):
                 out[k] = tuple(w if j == i else c for j, c in enumerate(out[k])) if isinstance(out[k], tuple) else w
     return out
-
-
-def _param_at(P, k, i):
-    return P[k][i] if isinstance(P[k], tuple) else P[k]
 
 
 class _Broadcast(dr.CustomOp):
@@ -226,14 +222,7 @@ def prepare_faces(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, color
     fc.packed = _pack_corners(T, fc.Xd, fc.Yd, fc.orient)
     dr.schedule(fc.packed)
     if fc.ad:  # corners flattened (face, corner) for the linearised distance (see signed_distance)
-        lane = dr.arange(UInt32, m * K)
-        kf, ff = lane % K, lane // K
-        fc.Xall = dr.zeros(Float, m * K)
-        fc.Yall = dr.zeros(Float, m * K)
-        for k in range(K):  # (one lane reads each corner: the adjoint scatters need no atomics)
-            sel = kf == k
-            fc.Xall = dr.select(sel, dr.gather(Float, X[k], ff, sel, mode=dr.ReduceMode.Permute), fc.Xall)
-            fc.Yall = dr.select(sel, dr.gather(Float, Y[k], ff, sel, mode=dr.ReduceMode.Permute), fc.Yall)
+        fc.Xall, fc.Yall = _row_major(T, X, K), _row_major(T, Y, K)
     fc.near, fc.far = camera.near, camera.far
     fc.shade = None
     fc.tex = None if tex is None else tex[:5]
@@ -809,21 +798,25 @@ def _local_derivative(fn, x):
         return dr.detach(y), dr.grad(y)
 
 
+def _row_major(T, cols, width):
+    """One flat array holding ``cols[k][f]`` at ``f·width + k`` (zeros for k >= len(cols)), built by
+    gathers: scatters into one array would each evaluate the one before (a kernel apiece). Each
+    element is read by one lane, so the adjoint is a plain scatter (``ReduceMode.Permute``)."""
+    lane = dr.arange(T.UInt32, width * dr.width(cols[0]))
+    row, col = lane // width, lane % width
+    out = dr.zeros(T.Float, dr.width(lane))
+    for k, c in enumerate(cols):
+        sel = col == k
+        out = dr.select(sel, dr.gather(T.Float, c, row, sel, mode=dr.ReduceMode.Permute), out)
+    return out
+
+
 def _pack_corners(T, Xd, Yd, orient):
     """One flat array of the detached corners and the orientation, face after face (X_0..X_{K−1},
     Y_0..Y_{K−1}, orient, padding to 8 or 16 entries), so that a loop reads a face with one packet
     gather (a vector load per lane and a transpose) instead of 2K + 1 gathers: forward loop of the
-    paper shape step −10 to −12 % at τ = 0.01 and 0.003 (toggled in one process, 1 thread).
-    Gathered, not scattered: each scatter into one array evaluates the previous one (seven kernels,
-    each recomputing the projection; now one, reading the columns once they are evaluated)."""
-    cols = [*Xd, *Yd, orient]
-    n = _packed_width(len(Xd))
-    lane = dr.arange(T.UInt32, n * dr.width(orient))
-    face, j = lane // n, lane % n
-    packed = dr.zeros(T.Float, dr.width(lane))
-    for k, c in enumerate(cols):
-        packed = dr.select(j == k, dr.gather(T.Float, c, face), packed)
-    return packed
+    paper shape step −10 to −12 % at τ = 0.01 and 0.003 (toggled in one process, 1 thread)."""
+    return _row_major(T, [*Xd, *Yd, orient], _packed_width(len(Xd)))
 
 
 def _packed_width(K):
@@ -1133,13 +1126,9 @@ class AlphaSum(dr.CustomOp):
 
             acc = list(dr.while_loop((dr.zeros(T.UInt32, m), *(dr.zeros(Float, m) for _ in acc)),
                                      lambda c, *t: c < C, add_chunk)[1:])
-        if want_xy:  # gathered, not scattered (each scatter into gX would evaluate the one before)
+        if want_xy:
             dr.schedule(*acc)
-            lane = dr.arange(T.UInt32, m * K)
-            face, corner = lane // K, lane % K
-            for k in range(K):
-                gX = dr.select(corner == k, dr.gather(Float, acc[2 * k], face), gX)
-                gY = dr.select(corner == k, dr.gather(Float, acc[2 * k + 1], face), gY)
+            gX, gY = _row_major(T, acc[0::2], K), _row_major(T, acc[1::2], K)
         return gt, gp, gk, gX, gY
 
     def _pixel_loop(self, pair, delta, want_xy, x_eps, x_cut, tau, gX, gY):
