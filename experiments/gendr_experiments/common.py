@@ -191,6 +191,19 @@ def load_template(spec: str, scale: float):
 # losses
 # ------------------------------------------------------------------------------------------------
 
+def finite_update(opt, loss: torch.Tensor) -> bool:
+    """Backward and one update of ``opt``, unless the loss or a gradient is not finite (Adam would
+    turn the parameters into NaN): then nothing is updated. Returns whether ``opt`` stepped."""
+    if not torch.isfinite(loss):
+        return False
+    opt.zero_grad()
+    loss.backward()
+    if not all(bool(torch.isfinite(p.grad).all()) for g in opt.param_groups for p in g["params"]):
+        return False
+    opt.step()
+    return True
+
+
 def iou_loss_per_view(pred: torch.Tensor, target: torch.Tensor, eps: float = 1e-6) -> torch.Tensor:
     """``[B]`` soft IoU loss 1 − Σ(a·t)/Σ(a + t − a·t) of each view (sums over H, W)."""
     dims = tuple(range(1, pred.dim()))

@@ -49,9 +49,9 @@ import gendr
 
 from gendr.errors import ParameterError
 
-from .common import (axis_angle_to_matrix, data_digests, hard_renderer, instance_from_config, iou_loss_per_view,
-                     load_target_mesh, log_tau_schedule, make_renderer, preset_config, random_rotation,
-                     rotation_about, rotation_angle_deg)
+from .common import (axis_angle_to_matrix, data_digests, finite_update, hard_renderer, instance_from_config,
+                     iou_loss_per_view, load_target_mesh, log_tau_schedule, make_renderer, preset_config,
+                     random_rotation, rotation_about, rotation_angle_deg)
 
 __all__ = ["POSE_DEFAULTS", "POSE_PRESETS", "pose_config", "run_pose", "PoseProblem", "LookAtPoseProblem",
            "make_pose_problem", "SUCCESS_DEGREES"]
@@ -173,13 +173,8 @@ class _PoseBase:
         else:
             per_view = iou_loss_per_view(sil, self.ref)
         loss = self.reduce(per_view)
-        if not torch.isfinite(loss):
+        if not finite_update(self.opt, loss):
             return float("nan")
-        self.opt.zero_grad()
-        loss.backward()
-        if not all(bool(torch.isfinite(p.grad).all()) for p in self.params):
-            return float("nan")
-        self.opt.step()
         self.after_update()
         if callback is not None:
             callback(step_index, sil.detach(), self.ref, float(loss.detach()))

@@ -34,9 +34,9 @@ import gendr
 from gendr.errors import ParameterError
 
 from .targets import is_images_target, load_image_target
-from .common import (data_digests, flatten_edges, flatten_loss, hard_renderer, instance_from_config, laplacian_loss,
-                     load_target_mesh, load_template, make_renderer, mesh_laplacian, preset_config, renderer_tau,
-                     soft_iou_loss, iou_loss_per_view)
+from .common import (data_digests, finite_update, flatten_edges, flatten_loss, hard_renderer, instance_from_config,
+                     laplacian_loss, load_target_mesh, load_template, make_renderer, mesh_laplacian, preset_config,
+                     renderer_tau, soft_iou_loss, iou_loss_per_view)
 
 __all__ = ["SHAPE_DEFAULTS", "SHAPE_PRESETS", "shape_config", "run_shape", "ShapeProblem", "SphereDeformer", "shape_cameras",
            "shape_target_views"]
@@ -211,13 +211,8 @@ class ShapeProblem:
         iou = soft_iou_loss(sil, self.target_sil)
         loss = (iou + cfg["lambda_lap"] * laplacian_loss(v, self.L)
                 + cfg["lambda_flat"] * flatten_loss(v, self.fedges))
-        if not torch.isfinite(loss):
+        if not finite_update(self.opt, loss):
             return float("nan")
-        self.opt.zero_grad()
-        loss.backward()
-        if not all(bool(torch.isfinite(p.grad).all()) for p in model.parameters()):
-            return float("nan")
-        self.opt.step()
         if callback is not None:
             callback(step_index, v.detach(), sil.detach(), float(loss.detach()))
         return float(iou.detach())
