@@ -596,7 +596,9 @@ def _dombi_inverse(ops, s, p):
     def lower(s):
         r = _pow0(ops, s, _recip(p))
         return r / (1.0 + r)
-    return _split_at(ops, s, 1.0, lower, lambda s: ops.sigmoid(ops.log(s) / _a(p)))
+    # (at s = inf the guard keeps log(s)/p's p-gradient, inf·0, from making a NaN: the result is 1 for any p)
+    return _split_at(ops, s, 1.0, lower,
+                     lambda s: ops.sigmoid(_inf_guard(ops, lambda s: ops.log(s) / _a(p), (s,), (1.0,), p)))
 
 
 TCONORMS.add(TConormFamily(
@@ -624,7 +626,8 @@ TCONORMS.add(TConormFamily(
     binary=_schweizer_sklar_binary,
     params=(Param(_P, NEGATIVE, doc="p = −1: hamacher p = 0; p → 0: probabilistic; p → −∞: max"),),
     generator=lambda ops, x, log1m_x, p: _inf_guard(ops, lambda l: ops.expm1(_a(p) * l), (log1m_x,), (_LOG_HALF,), p),
-    generator_inverse=lambda ops, s, p: -ops.expm1(ops.log1p(s) / _a(p)),
+    # guarded as dombi's inverse: s = inf (a pixel covered with p = 1) gives 1 and a zero p-gradient
+    generator_inverse=lambda ops, s, p: -ops.expm1(-_inf_guard(ops, lambda s: -ops.log1p(s) / _a(p), (s,), (0.0,), p)),
     generator_at_one=_strict,
     doc="S(a, b) = 1 − ((1 − a)^p + (1 − b)^p − 1)^(1/p), p < 0; generator (1 − x)^p − 1 = "
         "expm1(p·log(1 − x)); inverse 1 − (1 + s)^(1/p).",
