@@ -85,15 +85,17 @@ def _bridge():
                 ctx.device = tensors[0].device if tensors else None
                 res = dr.detach(out).torch()
                 # (differentiable even where no gradient reaches the inputs — heaviside with "or"
-                # and no RGB, an empty mesh —, as the torch backend's: backward then gives None)
+                # and no RGB, an empty mesh —, as the torch backend's: backward then gives zeros)
+                ctx.shapes = [(x.shape, x.dtype, x.device) for x in tensors]
                 return res.to(ctx.device) if ctx.device is not None else res
 
             @staticmethod
             @torch.autograd.function.once_differentiable
             def backward(ctx, grad):
                 T, inputs = ctx.T, ctx.inputs
-                if not dr.grad_enabled(ctx.output):
-                    return (None, None, *[None] * len(inputs))
+                if not dr.grad_enabled(ctx.output):  # zeros, as the torch backend's graph gives
+                    return (None, None, *[torch.zeros(shape, dtype=dt, device=dev) if need else None
+                                          for need, (shape, dt, dev) in zip(ctx.needs_input_grad[2:], ctx.shapes)])
                 for x in inputs:
                     if dr.grad_enabled(x):
                         dr.clear_grad(x)

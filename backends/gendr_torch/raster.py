@@ -638,8 +638,9 @@ class SoftAlpha(torch.autograd.Function):
         x_cut = s.cutoff_argument(ops, tau.detach())
         W = s.image_size[1]
         B, K, Wc = plan.fc.B, plan.fc.K, plan.Wc
-        if not (tcn.streams or tcn.kind == MAX):  # the hard "or": piecewise constant
-            return (None, None, None, None, *[None] * len(tparams))
+        if not (tcn.streams or tcn.kind == MAX):  # the hard "or": piecewise constant, zero gradients
+            return tuple(torch.zeros_like(t) if need else None
+                         for t, need in zip((X, Y, tau, acc, *tparams), ctx.needs_input_grad))
         want_tau = ctx.needs_input_grad[2]
         geom = edge_table(X, Y)
         gP = X.new_zeros(X.numel() * 4)  # per (face, edge k): the parts for corner k (x, y), corner k + 1 (x, y)
