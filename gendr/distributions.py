@@ -526,10 +526,10 @@ DISTRIBUTIONS.add(DistributionFamily(
 # --- Laplace ------------------------------------------------------------------------------------
 
 def _laplace_cdf(ops, x):
+    # one exp of −|x| (written as a where: its slope at 0 is the right side's, where abs's is 0)
     neg = x < 0.0
-    xn = ops.where(neg, x, 0.0)
-    xp = ops.where(neg, 0.0, x)
-    return ops.where(neg, 0.5 * ops.exp(xn), 1.0 - 0.5 * ops.exp(-xp))
+    h = 0.5 * ops.exp(ops.where(neg, x, -x))
+    return ops.where(neg, h, 1.0 - h)
 
 
 def _laplace_pdf(ops, x):
