@@ -13,3 +13,12 @@ from .cameras import Camera, PerspectiveCamera, OrthographicCamera, IntrinsicsCa
 from .renderer import Renderer, RenderSettings, available_backends
 from .grid import Instance, paper_grid
 from .gbuffer import GBuffer
+
+#: the public API (``from gendr import *``); submodules such as :mod:`gendr.scenes` and
+#: :mod:`gendr.ops` are imported by name
+__all__ = ["Renderer", "RenderSettings", "available_backends",
+           "distribution", "Distribution", "DISTRIBUTIONS", "tconorm", "TConorm", "TCONORMS",
+           "Camera", "PerspectiveCamera", "OrthographicCamera", "IntrinsicsCamera", "Orbit", "orbit_camera",
+           "Instance", "paper_grid", "GBuffer",
+           "GendrError", "UnknownNameError", "ParameterError", "ShapeError", "DTypeError", "InputValueError",
+           "BackendUnavailableError", "DegenerateCameraError"]

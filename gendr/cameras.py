@@ -21,13 +21,15 @@ messages name the parameter, its value and, for a batch of cameras, the first ba
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+import numbers
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from .errors import DegenerateCameraError, InputValueError, ParameterError, ShapeError
 from .ops import numpy_ops
+from .params import is_backend_array
 
 #: kind of each array parameter, used by backends to convert them: "vec3" -> [B?, 3], "scalar" -> [B?]
 VEC3, SCALAR = "vec3", "scalar"
@@ -60,18 +62,27 @@ class Orbit:
 
 
 def _check_positive(owner, name, value):
-    if isinstance(value, (int, float)) and not (math.isfinite(value) and value > 0):
+    if isinstance(value, numbers.Real) and not (math.isfinite(value) and value > 0):
         raise ParameterError(f"{owner} parameter {name}={value!r} must be finite and > 0")
 
 
 def _plain(value) -> bool:
-    """A Python number, a NumPy number or array, or a (nested) sequence of them: checkable when the
-    camera is made. Anything else (a backend tensor) is checked at render time."""
-    if isinstance(value, np.ndarray):
-        return value.dtype.kind in "biuf"
-    if isinstance(value, (int, float, np.integer, np.floating)):
-        return True
-    return isinstance(value, (list, tuple)) and len(value) > 0 and all(_plain(v) for v in value)
+    """A Python number, a NumPy number or array, a (nested) sequence of them, or anything else NumPy
+    reads as numbers (a memoryview, array.array): checkable when the camera is made. Backend
+    tensors are checked at render time."""
+    if is_backend_array(value) or isinstance(value, (str, bytes)) or value is None:
+        return False
+    if isinstance(value, (list, tuple)):
+        return len(value) > 0 and all(_plain(v) for v in value)
+    try:
+        return np.asarray(value).dtype.kind in "biuf"
+    except (TypeError, ValueError):
+        return False
+
+
+def _mixes_tensors(value) -> bool:
+    """A (nested) sequence holding a backend tensor somewhere."""
+    return isinstance(value, (list, tuple)) and any(is_backend_array(v) or _mixes_tensors(v) for v in value)
 
 
 def batched(name: str, value, kind: str) -> np.ndarray:
@@ -152,12 +163,20 @@ class Camera:
         name = type(self).__name__
         for f in ("near", "far"):
             v = getattr(self, f)
-            if not isinstance(v, (int, float)) or isinstance(v, bool):
-                raise ParameterError(f"{name} parameter {f}={v!r} must be a Python number")
+            if not isinstance(v, numbers.Real) or isinstance(v, bool):
+                raise ParameterError(f"{name} parameter {f}={v!r} must be a number (not a tensor: not differentiable)")
             _check_positive(name, f, v)
+            object.__setattr__(self, f, float(v))  # (frozen dataclass; NumPy scalars become floats)
         if not self.far > self.near:
             raise ParameterError(f"{name} needs far > near, got near={self.near!r}, far={self.far!r}")
         params = self.array_params()
+        for k, (value, _) in params.items():
+            if _mixes_tensors(value):
+                raise ParameterError(f"{name} parameter {k}={value!r} mixes numbers and tensors: give one tensor "
+                                     f"(e.g. torch.stack), which keeps its gradient")
+            if not (_plain(value) or is_backend_array(value)):
+                raise ParameterError(f"{name} parameter {k}={value!r} must be a number, a sequence of numbers, "
+                                     f"a float NumPy array or a torch/Dr.Jit tensor")
         plain = {k: v for k, v in params.items() if _plain(v[0])}
         if plain:  # the rest (tensors) at render time, by the backend
             self.check_values({k: batched(k, value, kind) for k, (value, kind) in plain.items()})
@@ -195,6 +214,10 @@ class Camera:
                 raise ParameterError(f"{cls} parameter {k}={_fmt(values[k][i])} must be {want}"
                                      f"{member(i, len(values[k]))}")
         orbit = isinstance(self.eye, Orbit)
+        if orbit and "distance" in values and (values["distance"] < 0).any():  # (0: eye on at, below)
+            i = _first(values["distance"] < 0)
+            raise ParameterError(f"{cls} parameter distance={_fmt(values['distance'][i])} (an orbit's) must be > 0"
+                                 f"{member(i, len(values['distance']))}")
         if not all(k in values for k in (("at", "azimuth", "elevation", "distance") if orbit else ("at", "eye"))):
             return
         # 3-tuples of [n] components (n = 1 or B, broadcasting), as the backends evaluate the pose
@@ -229,6 +252,22 @@ class Camera:
             raise DegenerateCameraError(
                 f"{cls}: up={_fmt(row(up, i))} is parallel to the viewing direction from {pose} to at={_fmt(row(at, i))}"
                 f"{member(i)}: the camera's roll is undefined; choose an up vector across the view")
+
+    def batch_size(self) -> int:
+        """The camera batch size B (1: unbatched) from the shapes of its array parameters ([B, 3]
+        or [B]), without reading their values; :class:`~gendr.errors.ShapeError` for an empty batch
+        or two batch sizes that differ (the backends check the shapes themselves)."""
+        B = 1
+        for k, (value, kind) in self.array_params().items():
+            shape = tuple(value.shape) if hasattr(value, "shape") else np.shape(value)
+            n = shape[0] if len(shape) == (2 if kind == VEC3 else 1) else 1
+            if n == 0:
+                raise ShapeError(f"camera parameter {k} has an empty batch (shape {list(shape)})")
+            if n != 1:
+                if B not in (1, n):
+                    raise ShapeError(f"camera parameter {k} has batch size {n}, others have {B}")
+                B = n
+        return B
 
     # --- what backends convert -------------------------------------------------------------
     def array_params(self) -> dict[str, tuple[Any, str]]:
@@ -339,7 +378,8 @@ class OrthographicCamera(Camera):
     ymag: Any = 1.0
     orthographic = True
 
-    _LENS_DOMAINS = {"xmag": (lambda v: v > 0, "> 0"), "ymag": (lambda v: v > 0, "> 0")}
+    # (ymag first: orbit_camera's xmag defaults to its ymag, so a bad ymag is the one to name)
+    _LENS_DOMAINS = {"ymag": (lambda v: v > 0, "> 0"), "xmag": (lambda v: v > 0, "> 0")}
 
     def _lens_params(self):
         return {"xmag": (self.xmag, SCALAR), "ymag": (self.ymag, SCALAR)}

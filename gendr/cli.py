@@ -183,9 +183,20 @@ def _render_specs(args):
     return dist, tcn, f"{dist.label()}|{tcn.label()}"
 
 
+def _png_output(output: str) -> Path:
+    """The -o path of a PNG to write, checked before any work: a .png name, not a directory."""
+    path = Path(output)
+    if path.is_dir():
+        raise ParameterError(f"-o {output!r} is a directory; name the PNG file to write (e.g. {output}/render.png)")
+    if path.suffix.lower() != ".png":
+        raise ParameterError(f"-o {output!r}: gendr render writes PNG files; give a name ending in .png")
+    return path
+
+
 def cmd_render(args) -> int:
     from .images import contact_sheet, require_pillow, write_png
     require_pillow("gendr render")  # before rendering, not after
+    path = _png_output(args.output)
     dist, tcn, label = _render_specs(args)
     mesh, what = _resolve_mesh(args.mesh, normalize_files=not args.no_normalize)
     tau = args.tau if args.tau is not None else (1e-4 if dist.squared else 0.01)
@@ -209,7 +220,6 @@ def cmd_render(args) -> int:
     else:
         columns = n if n <= 6 else math.ceil(math.sqrt(n))
         out = contact_sheet(list(images), columns=columns, pad=2, background=(0.0, 0.0, 0.0, 0.0))
-    path = Path(args.output)
     path.parent.mkdir(parents=True, exist_ok=True)
     write_png(path, out)
     views = "" if n is None else f", {n} views"

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass, replace
 from typing import Callable, Mapping
 
@@ -62,6 +63,20 @@ def is_backend_array(v) -> bool:
     """True for torch tensors and Dr.Jit arrays (the values a parameter may be learnable as)."""
     mod = type(v).__module__ or ""
     return mod.startswith("torch") or mod.startswith("drjit")
+
+
+def plain_number(v) -> float | None:
+    """``float(v)`` for a real number (Python or NumPy) or a NumPy array of one, else None: strings,
+    bools and other objects are not numbers here (``float("2")`` and ``float(True)`` would pass)."""
+    if isinstance(v, (str, bytes, bool)) or type(v).__name__ == "bool_":
+        return None
+    if hasattr(v, "__array__") and not is_backend_array(v) and getattr(v, "size", 0) == 1:
+        if getattr(v, "dtype", None) is None or v.dtype.kind not in "iuf":
+            return None
+        v = v.reshape(-1)[0]
+    if not isinstance(v, numbers.Number) or (isinstance(v, numbers.Complex) and not isinstance(v, numbers.Real)):
+        return None  # (numbers.Number, not Real: Decimal and Fraction-like types convert exactly enough)
+    return float(v)
 
 
 def array_value(owner: str, name: str, raw) -> float:
@@ -151,10 +166,9 @@ def validate_params(owner: str, declared: tuple[Param, ...], given: Mapping[str,
                                      f"domain: expected {p.constraint.description}")
             out[p.name] = Learnable(value, raw)
             continue
-        try:
-            value = float(raw)
-        except (TypeError, ValueError):
-            raise ParameterError(f"{owner} parameter {p.name}={raw!r} must be a number {p.constraint.description}") from None
+        value = plain_number(raw)
+        if value is None:
+            raise ParameterError(f"{owner} parameter {p.name}={raw!r} must be a number {p.constraint.description}")
         if not p.constraint.check(value):
             raise ParameterError(f"{owner} parameter {p.name}={raw!r} is out of domain: expected {p.constraint.description}")
         out[p.name] = value

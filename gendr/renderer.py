@@ -4,10 +4,13 @@ from __future__ import annotations
 import copy
 import inspect
 import math
+import numbers
 from dataclasses import dataclass, replace
 from functools import lru_cache
 from importlib import metadata
 from typing import Any
+
+import numpy as np
 
 from .cameras import Camera
 from .distributions import Distribution, distribution as make_distribution
@@ -15,6 +18,7 @@ from .gbuffer import GBuffer
 from .textures import check_settings as _check_texture_settings, check_textured_inputs
 from .errors import (BackendUnavailableError, InputValueError, ParameterError,
                      ShapeError, UnknownNameError)
+from .params import plain_number
 from .tconorms import TConorm, tconorm as make_tconorm
 
 BLENDS = ("softmax", "hard", None)
@@ -79,23 +83,42 @@ class RenderSettings:
 
 
 def _number(owner, name, value, *, positive=False, nonneg=False, integer=False):
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or (integer and not isinstance(value, int)):
+    """``value`` (a Python or NumPy number) as a Python int/float, checked; ParameterError naming it."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral if integer else numbers.Real):
         kind = "an integer" if integer else "a number"
         raise ParameterError(f"{owner} parameter {name}={value!r} must be {kind}")
-    if not math.isfinite(value) or (positive and value <= 0) or (nonneg and value < 0):
+    v = int(value) if integer else float(value)
+    if not math.isfinite(v) or (positive and v <= 0) or (nonneg and v < 0):
         want = "> 0" if positive else (">= 0" if nonneg else "finite")
         raise ParameterError(f"{owner} parameter {name}={value!r} is out of domain: expected {want}")
-    return value
+    return v
 
 
 def _triple(owner, name, value):
     try:
-        t = tuple(float(v) for v in value)
+        t = tuple(plain_number(v) for v in value)
     except TypeError:
         t = ()
+    t = () if None in t else t
     if len(t) != 3 or not all(math.isfinite(v) for v in t):
         raise ParameterError(f"{owner} parameter {name}={value!r} must be 3 finite numbers")
     return t
+
+
+def _render_batch(verts, camera) -> int:
+    """B of a render: the broadcast of the vertex batch and the camera batch (ShapeError if they differ)."""
+    Bv = verts.shape[0] if len(verts.shape) == 3 else 1
+    Bc = camera.batch_size()
+    if Bv != 1 and Bc != 1 and Bv != Bc:
+        raise ShapeError(f"vertex batch size {Bv} and camera batch size {Bc} do not match")
+    return max(Bv, Bc)
+
+
+def _check_batch(name, shape, batched_ndim, B):
+    """An input with a leading batch (``len(shape) == batched_ndim``) must have 1 or the render's B."""
+    if len(shape) == batched_ndim and shape[0] not in (1, B):
+        raise ShapeError(f"{name} has batch size {shape[0]}, the render has B = {B} (the broadcast of the "
+                         f"vertex and camera batch sizes); give " + (f"1 or {B}" if B > 1 else "no batch or 1"))
 
 
 def _scalar(t) -> float:
@@ -109,8 +132,15 @@ def _scalar(t) -> float:
 
 
 def _check_tau(tau):
-    if isinstance(tau, (bool, str, bytes)):
-        raise ParameterError(f"Renderer parameter tau={tau!r} must be a number > 0")
+    """``tau`` checked: a number or a NumPy scalar/[1] array (returned as a float), or a 0-d/[1]
+    backend tensor (returned as is, so it keeps its gradient)."""
+    raw = tau
+    if not (hasattr(tau, "detach") or hasattr(tau, "numpy")):  # not a torch / Dr.Jit array
+        if getattr(tau, "size", 1) != 1:
+            raise ShapeError(f"Renderer parameter tau must be a scalar, got shape {tuple(tau.shape)}")
+        tau = plain_number(tau)
+        if tau is None:
+            raise ParameterError(f"Renderer parameter tau={raw!r} must be a number > 0")
     shape = getattr(tau, "shape", ())
     if tuple(shape) not in ((), (1,)):
         raise ShapeError(f"Renderer parameter tau must be a scalar, got shape {tuple(shape)}")
@@ -119,7 +149,8 @@ def _check_tau(tau):
     except (TypeError, ValueError):
         raise ParameterError(f"Renderer parameter tau={tau!r} must be a number > 0") from None
     if not (math.isfinite(v) and v > 0):
-        raise ParameterError(f"Renderer parameter tau={tau!r} is out of domain: expected finite and > 0")
+        raise ParameterError(f"Renderer parameter tau={raw!r} is out of domain: expected finite and > 0")
+    return tau
 
 
 @lru_cache(maxsize=None)
@@ -173,7 +204,7 @@ class Renderer:
     image_size : (H, W) or int
     backend : str
         a registered backend (``gendr.available_backends()``), default ``"torch"``.
-    eps : float >= 0
+    eps : float, 0 <= eps < 1
         coverage culling threshold: a face contributes nothing to a pixel where its coverage is
         below ``eps``. ``eps=0`` disables culling (exact dense result). Heavy-tailed distributions
         (cauchy, reciprocal, levy reversed) have coverage >= eps far away from every face, so each
@@ -181,7 +212,7 @@ class Renderer:
     blend : "softmax", "hard" or None
         RGB: SoftRas' softmax over depth, the colour of the nearest covering face (z-buffer), or
         None for a silhouette only (RGB channels 0; fastest).
-    gamma, background_eps : floats > 0
+    gamma : float > 0, background_eps : float >= 0
         softmax blend temperature γ and background weight exp(ε/γ) (DESIGN.md §3).
     background : 3 floats, RGB where no face is.
     ambient, diffuse, light_direction : Lambert shading; ``light_direction`` is the direction the
@@ -239,35 +270,36 @@ class Renderer:
                  texture_wrap="repeat", **backend_options):
         dist = make_distribution(distribution)
         tcn = make_tconorm(tconorm)
-        _check_tau(tau)
-        if isinstance(image_size, int) and not isinstance(image_size, bool):
+        tau = _check_tau(tau)
+        if isinstance(image_size, numbers.Integral) and not isinstance(image_size, bool):
             image_size = (image_size, image_size)
         try:
             H, W = image_size
         except (TypeError, ValueError):
             raise ParameterError(f"Renderer parameter image_size={image_size!r} must be (H, W) or an int") from None
-        for n, v in (("image height", H), ("image width", W)):
-            _number("Renderer", n, v, positive=True, integer=True)
-        _number("Renderer", "eps", eps, nonneg=True)
+        H, W = (_number("Renderer", n, v, positive=True, integer=True) for n, v in (("image height", H), ("image width", W)))
+        eps = _number("Renderer", "eps", eps, nonneg=True)
         if eps >= 1:
             raise ParameterError(f"Renderer parameter eps={eps!r} is out of domain: expected 0 <= eps < 1")
         if blend not in BLENDS:
             raise ParameterError(f"Renderer parameter blend={blend!r} must be one of {BLENDS}")
-        _number("Renderer", "gamma", gamma, positive=True)
-        _number("Renderer", "background_eps", background_eps, nonneg=True)
-        _number("Renderer", "ambient", ambient, nonneg=True)
-        _number("Renderer", "diffuse", diffuse, nonneg=True)
-        _number("Renderer", "max_pairs", max_pairs, positive=True, integer=True)
+        gamma = _number("Renderer", "gamma", gamma, positive=True)
+        background_eps = _number("Renderer", "background_eps", background_eps, nonneg=True)
+        ambient = _number("Renderer", "ambient", ambient, nonneg=True)
+        diffuse = _number("Renderer", "diffuse", diffuse, nonneg=True)
+        max_pairs = _number("Renderer", "max_pairs", max_pairs, positive=True, integer=True)
         if cutoff is not None:
-            cutoff = float(_number("Renderer", "cutoff", cutoff, positive=True))
+            cutoff = _number("Renderer", "cutoff", cutoff, positive=True)
+        if not isinstance(cull_backfaces, bool) and type(cull_backfaces).__name__ != "bool_":
+            raise ParameterError(f"Renderer parameter cull_backfaces={cull_backfaces!r} must be True or False")
         _check_texture_settings(texture_filter, texture_wrap)
         light = _triple("Renderer", "light_direction", light_direction)
         if not any(light):
             raise ParameterError("Renderer parameter light_direction must not be the zero vector")
         self.settings = RenderSettings(
-            dist, tcn, tau, (H, W), float(eps), blend, float(gamma), float(background_eps),
-            _triple("Renderer", "background", background), float(ambient), float(diffuse), light,
-            bool(cull_backfaces), int(max_pairs), cutoff, texture_filter, texture_wrap)
+            dist, tcn, tau, (H, W), eps, blend, gamma, background_eps,
+            _triple("Renderer", "background", background), ambient, diffuse, light,
+            bool(cull_backfaces), max_pairs, cutoff, texture_filter, texture_wrap)
         self.backend = load_backend(backend, **backend_options)
 
     def __repr__(self):
@@ -288,7 +320,7 @@ class Renderer:
         >>> r2.settings.tau_value, r.settings.tau_value, r2.backend is r.backend
         (0.01, 0.1, True)
         """
-        _check_tau(tau)
+        tau = _check_tau(tau)
         new = copy.copy(self)
         new.settings = replace(self.settings, tau=tau)
         return new
@@ -312,16 +344,18 @@ class Renderer:
             separate ``vt`` indices); default ``faces`` (then T = V).
 
         Returns [B, H, W, 4] in the vertices' dtype: RGB, then alpha (the aggregated coverage).
-        A backend array on the vertices' device (torch: CPU/CUDA tensor; Dr.Jit: TensorXf/
-        TensorXf64); NumPy inputs are converted to the backend (torch: CPU). Differentiable w.r.t.
+        A backend array on the vertices' device (torch: CPU/CUDA tensor; the drjit backend: a torch
+        tensor when any input is one, else TensorXf/TensorXf64); NumPy inputs are converted to the
+        backend (torch: CPU). Differentiable w.r.t.
         vertices, colours, texture, uvs, the camera's tensor parameters, a tensor ``tau`` and the
         learnable T-conorm and distribution parameters (whichever require grad); ``faces`` and ``uv_faces`` are not.
         Pixel (row i, column j) is sampled at its centre; row 0 is the top of the image.
 
-        Raises (:mod:`gendr.errors`): ShapeError (shapes above), DTypeError (integer vertices or
-        colours, float indices), InputValueError (non-finite values, indices out of range),
-        ParameterError (both colour kinds, uvs without a texture, a camera that is not a gendr
-        camera, a learnable parameter out of its domain), DegenerateCameraError (a camera tensor
+        Raises (:mod:`gendr.errors`): ShapeError (shapes above; a colour, texture or uv batch other
+        than 1 or B), DTypeError (integer vertices, float indices), InputValueError (non-finite
+        values, indices out of range), ParameterError (both colour kinds, uvs without a texture, a
+        camera that is not a gendr camera, a tensor ``tau`` or a learnable parameter out of its
+        domain), DegenerateCameraError (a camera tensor
         without a defined view).
 
         >>> import torch, gendr
@@ -339,11 +373,15 @@ class Renderer:
         be = self.backend
         verts, faces_a = self._mesh_inputs(vertices, faces, camera)
         V = verts.shape[-2]
+        B = _render_batch(verts, camera)
         if texture is not None and (vertex_colors is not None or face_colors is not None):
             raise ParameterError("give a texture or vertex_colors/face_colors, not both")
         if texture is None and (uvs is not None or uv_faces is not None):
             raise ParameterError("uvs/uv_faces were given without a texture")
         tex = None if texture is None else check_textured_inputs(be, verts, faces_a, texture, uvs, uv_faces)
+        if tex is not None:
+            _check_batch("texture", tex[0].shape, 4, B)
+            _check_batch("uvs", tex[1].shape, 3, B)
         colors, per_face = None, False
         for name, value, n in (("vertex_colors", vertex_colors, V), ("face_colors", face_colors, faces_a.shape[0])):
             if value is None:
@@ -351,11 +389,14 @@ class Renderer:
             c = be.float_array(value, name, like=verts)
             if len(c.shape) not in (2, 3) or c.shape[-1] != 3 or c.shape[-2] != n:
                 raise ShapeError(f"{name} must have shape [B, {n}, 3] or [{n}, 3], got {list(c.shape)}")
+            _check_batch(name, c.shape, 3, B)
             bad = be.first_nonfinite(c)
             if bad is not None:
                 raise InputValueError(f"{name} must be finite; {name}{list(bad[0])} = {bad[1]}")
             colors, per_face = c, name == "face_colors"
         settings = self.settings
+        if not isinstance(settings.tau, float):  # a tensor τ: an optimizer may have moved it out of its domain
+            _check_tau(settings.tau)
         if settings.tconorm.learnable or settings.distribution.learnable:  # re-read and re-check
             settings = replace(settings, tconorm=settings.tconorm.refreshed(),  # (an optimizer moves them)
                                distribution=settings.distribution.refreshed())
@@ -389,6 +430,7 @@ class Renderer:
         """
         be = self.backend
         verts, faces_a = self._mesh_inputs(vertices, faces, camera)
+        _render_batch(verts, camera)
         return GBuffer(*be.rasterize(self.settings, verts, faces_a, camera))
 
     def _mesh_inputs(self, vertices, faces, camera):
@@ -398,10 +440,15 @@ class Renderer:
             raise ParameterError(f"camera must be a gendr camera (PerspectiveCamera, ...), got {type(camera).__name__}")
         be = self.backend
         verts = be.float_array(vertices, "vertices")
-        faces_a = be.index_array(faces, "faces")
+        if isinstance(faces, (list, tuple)) and len(faces) == 0:
+            faces = np.zeros((0, 3), dtype=np.int64)  # no faces ([] is float64 to NumPy)
+        try:
+            faces_a = be.index_array(faces, "faces")
+        except ValueError as exc:  # NumPy on ragged nesting
+            raise ShapeError(f"faces must be an [F, 3] integer array: {exc}") from None
         vshape = tuple(verts.shape)
-        if len(vshape) not in (2, 3) or vshape[-1] != 3 or vshape[-2] < 1:
-            raise ShapeError(f"vertices must have shape [B, V, 3] or [V, 3], got {list(vshape)}")
+        if len(vshape) not in (2, 3) or vshape[-1] != 3 or vshape[-2] < 1 or (len(vshape) == 3 and vshape[0] < 1):
+            raise ShapeError(f"vertices must have shape [B, V, 3] or [V, 3] (B, V >= 1), got {list(vshape)}")
         if len(faces_a.shape) != 2 or faces_a.shape[1] != 3:
             raise ShapeError(f"faces must have shape [F, 3], got {list(faces_a.shape)}")
         V = vshape[-2]

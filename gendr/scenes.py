@@ -15,6 +15,7 @@ Meshes from files go through :func:`load_mesh` (needs ``trimesh``, imported lazi
 """
 from __future__ import annotations
 
+import inspect
 import math
 import os
 from dataclasses import dataclass
@@ -22,7 +23,7 @@ from typing import Callable
 
 import numpy as np
 
-from .errors import InputValueError, ShapeError, UnknownNameError, BackendUnavailableError
+from .errors import BackendUnavailableError, InputValueError, ParameterError, ShapeError, UnknownNameError
 
 __all__ = ["Mesh", "icosphere", "cube", "torus", "thin_shape", "airplane", "chair", "teapot_like",
            "tetrahedron", "open_mesh", "degenerate_mesh", "SCENES", "get_scene", "load_mesh",
@@ -281,7 +282,7 @@ def icosphere(subdivisions: int = 3, radius: float = 1.0) -> Mesh:
     """Geodesic sphere: an icosahedron subdivided ``subdivisions`` times (each face into 4).
 
     Faces: 20·4^s (s = 3: 1,280 faces, 642 vertices; s = 5: 20,480 faces). Vertices: 10·4^s + 2.
-    ``subdivisions``: int in [0, 8]; ``radius``: world units > 0 (else ParameterError).
+    ``subdivisions``: int in [0, 8]; ``radius``: world units > 0 (else InputValueError).
 
     >>> from gendr.scenes import icosphere
     >>> icosphere(1), icosphere(1, radius=2.0).bounding_radius
@@ -457,7 +458,8 @@ CLOSED_SCENES = ("icosphere", "cube", "torus", "thin_shape", "airplane", "chair"
 def get_scene(name: str, **kwargs) -> Mesh:
     """Build the built-in scene ``name`` (keyword arguments go to its function).
 
-    Raises :class:`~gendr.errors.UnknownNameError` listing the valid names.
+    Raises :class:`~gendr.errors.UnknownNameError` listing the valid names, and
+    :class:`~gendr.errors.ParameterError` for a keyword the scene does not take.
 
     >>> from gendr.scenes import get_scene
     >>> get_scene("torus", n_major=8, n_minor=4)
@@ -469,12 +471,19 @@ def get_scene(name: str, **kwargs) -> Mesh:
     """
     if not isinstance(name, str) or name not in SCENES:
         raise UnknownNameError("scene", name, sorted(SCENES))
+    accepted = inspect.signature(SCENES[name]).parameters
+    for key in kwargs:
+        if key not in accepted:
+            raise ParameterError(f"scene {name!r} got unexpected parameter {key!r}; it accepts "
+                                 f"{', '.join(accepted) or 'no parameters'}")
     return SCENES[name](**kwargs)
 
 
 def _trimesh_load(path):
     """``(path as str, trimesh.Trimesh)`` of a mesh file, scenes concatenated, as stored (no
     processing); typed errors naming the path (missing, not a file, unreadable, no trimesh)."""
+    if not isinstance(path, (str, os.PathLike)):
+        raise InputValueError(f"mesh file path must be a str or os.PathLike, got {path!r}")
     p = os.fspath(path)
     if not os.path.isfile(p):
         raise InputValueError(f"mesh file {p!r} does not exist" if not os.path.exists(p)

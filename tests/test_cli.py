@@ -318,3 +318,21 @@ def test_console_process_errors_have_no_traceback(tmp_path):
                          capture_output=True, text=True)
     assert res.returncode == 2
     assert res.stderr.startswith("gendr: error: ") and "Traceback" not in res.stderr
+
+
+@pytest.mark.parametrize("name,words", [("x.jpg", "writes PNG files"), ("", "is a directory")])
+def test_render_output_must_be_a_png_file(tmp_path, capsys, name, words):
+    """(a .jpg name got PNG bytes; a directory failed after the render naming a temporary file)"""
+    out = tmp_path / name
+    code, _, err = _run(capsys, "render", "icosphere", "--size", "8", "-o", str(out))
+    assert code == 2 and words in err and str(out) in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("device,words", [("gpu", "is not a torch device"), ("cuda", "CUDA")])
+def test_render_with_a_device_torch_cannot_use(tmp_path, capsys, device, words):
+    import torch
+    if device == "cuda" and torch.cuda.is_available():
+        pytest.skip("this machine has CUDA: the device is usable")
+    code, _, err = _run(capsys, "render", "icosphere", "--size", "8", "--device", device, "-o", str(tmp_path / "a.png"))
+    assert code == 2 and words in err and "Traceback" not in err

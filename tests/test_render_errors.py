@@ -298,3 +298,111 @@ def test_unknown_backend_option_is_a_parameter_error(backend, option):
         pytest.skip(f"backend {backend} not installed")
     with pytest.raises(ParameterError, match=f"backend '{backend}' has no option '{option}'"):
         gendr.Renderer(backend=backend, **{option: True})
+
+
+# ------------------------------------------------------------------------------------------------
+# inputs a user plausibly passes (an audit of the public API, 2026-11-24): the same typed error from
+# both backends, raised before any work, naming the value
+# ------------------------------------------------------------------------------------------------
+def _backends():
+    return [b for b in ("torch", "drjit") if b in gendr.available_backends()]
+
+
+@pytest.mark.parametrize("backend", _backends())
+@pytest.mark.parametrize("kw,verts_batch,name", [
+    ({"vertex_colors": torch.rand(2, 4, 3, dtype=torch.float64)}, 1, "vertex_colors"),
+    ({"vertex_colors": torch.rand(3, 4, 3, dtype=torch.float64)}, 2, "vertex_colors"),
+    ({"face_colors": torch.rand(3, 2, 3, dtype=torch.float64)}, 2, "face_colors"),
+    ({"texture": torch.rand(3, 4, 4, 3, dtype=torch.float64), "uvs": torch.rand(4, 2, dtype=torch.float64)}, 2,
+     "texture"),
+    ({"texture": torch.rand(4, 4, 3, dtype=torch.float64), "uvs": torch.rand(3, 4, 2, dtype=torch.float64)}, 2, "uvs"),
+])
+def test_colour_and_texture_batches_must_be_one_or_the_render_batch(backend, kw, verts_batch, name):
+    """(torch raised a raw RuntimeError for colours and used the first textures; drjit ignored extra
+    colour sets and raised for textures)"""
+    v = V if verts_batch == 1 else V[None].repeat(verts_batch, 1, 1)
+    with pytest.raises(ShapeError, match=f"{name} has batch size") as e:
+        renderer(backend=backend).render(v, F, CAM, **kw)
+    assert f"B = {verts_batch}" in str(e.value)
+
+
+@pytest.mark.parametrize("backend", _backends())
+@pytest.mark.parametrize("value", [-0.01, 0.0, math.nan])
+def test_a_tensor_tau_is_checked_at_every_render(backend, value):
+    """An optimizer step may move a learnable τ out of its domain (it rendered garbage before)."""
+    tau = torch.tensor(0.01, dtype=torch.float64, requires_grad=True)
+    r = renderer(backend=backend, tau=tau)
+    r.render(V, F, CAM)
+    with torch.no_grad():
+        tau.fill_(value)
+    with pytest.raises(ParameterError, match="tau=tensor"):
+        r.render(V, F, CAM)
+
+
+@pytest.mark.parametrize("make,name", [
+    (lambda: gendr.PerspectiveCamera(fov_y=None), "fov_y=None"),
+    (lambda: gendr.PerspectiveCamera(fov_y="40"), "fov_y='40'"),
+    (lambda: gendr.PerspectiveCamera(eye="abc"), "eye='abc'"),
+    (lambda: gendr.PerspectiveCamera(eye=np.array([0, 0, 3], dtype=object)), "eye=array"),
+    (lambda: gendr.orbit_camera(None, 0.0, 3.0), "azimuth=None"),
+    (lambda: gendr.PerspectiveCamera(eye=[0.0, 0.0, torch.tensor(3.0, requires_grad=True)]), "mixes numbers and tensors"),
+    (lambda: gendr.orbit_camera(0.0, 0.0, 3.0, orthographic=True, ymag=0.0), "ymag=0"),
+    (lambda: gendr.PerspectiveCamera(eye=gendr.Orbit(0.0, 0.0, -3.0)), "distance=-3"),
+])
+def test_camera_values_that_are_not_numbers_fail_at_construction(make, name):
+    """(they were accepted and failed at render time with raw TypeErrors, differently per backend)"""
+    with pytest.raises(ParameterError) as e:
+        make()
+    assert name in str(e.value)
+
+
+@pytest.mark.parametrize("backend", _backends())
+def test_a_negative_tensor_orbit_distance_is_an_error(backend):
+    """(rendered silently from the opposite side)"""
+    cam = gendr.orbit_camera(0.0, 0.0, torch.tensor(-3.0, dtype=torch.float64))
+    with pytest.raises(ParameterError, match="distance=-3"):
+        renderer(backend=backend).render(V, F, cam)
+
+
+def test_numpy_numbers_are_numbers():
+    r = renderer(image_size=np.int64(8), tau=np.array([0.02]), eps=np.float32(0.0))
+    assert r.settings.image_size == (8, 8) and r.settings.tau_value == 0.02
+    assert gendr.PerspectiveCamera(near=np.float32(0.5)).near == 0.5
+    assert gendr.tconorm("yager", p=np.array([2.0])).kwargs == {"p": 2.0}
+
+
+@pytest.mark.parametrize("make,name", [
+    (lambda: gendr.tconorm("yager", p="2"), "p='2'"),
+    (lambda: gendr.tconorm("yager", p=True), "p=True"),
+    (lambda: renderer(cull_backfaces="no"), "cull_backfaces='no'"),
+    (lambda: renderer(background="red"), "background='red'"),
+    (lambda: renderer(light_direction="abc"), "light_direction='abc'"),
+])
+def test_strings_and_bools_are_not_numbers(make, name):
+    with pytest.raises(ParameterError) as e:
+        make()
+    assert name in str(e.value)
+
+
+@pytest.mark.parametrize("backend", _backends())
+def test_empty_batches_and_ragged_faces(backend):
+    r = renderer(backend=backend)
+    with pytest.raises(ShapeError, match=r"got \[0, 4, 3\]"):
+        r.render(V[None][:0], F, CAM)
+    with pytest.raises(ShapeError, match="azimuth has an empty batch"):
+        r.render(V, F, gendr.orbit_camera(np.zeros(0), 0.0, 3.0))
+    with pytest.raises(ShapeError, match=r"faces must be an \[F, 3\] integer array"):
+        r.render(V, [[0, 1, 2], [0, 1]], CAM)
+    img = r.to_numpy(r.render(V, [], CAM))  # no faces: an empty image
+    assert img.shape == (1, 8, 10, 4) and float(img[..., 3].max()) == 0.0
+
+
+def test_torch_device_is_checked_at_construction():
+    """(a CUDA device on a CPU-only torch failed at the first render with an AssertionError)"""
+    from gendr.errors import BackendUnavailableError
+    with pytest.raises(ParameterError, match="device='gpu'"):
+        renderer(backend="torch", device="gpu")
+    if not torch.cuda.is_available():
+        with pytest.raises(BackendUnavailableError, match="device='cuda'"):
+            renderer(backend="torch", device="cuda")
+    assert renderer(backend="torch", device="cpu").backend.device.type == "cpu"

@@ -219,3 +219,16 @@ def test_import_gendr_scenes_does_not_import_torch_or_trimesh():
     code = ("import sys, gendr, gendr.scenes, gendr.images, gendr.cli; "
             "assert 'torch' not in sys.modules; assert 'trimesh' not in sys.modules; assert 'PIL' not in sys.modules")
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_a_scene_keyword_it_does_not_take_names_the_accepted_ones():
+    """(a raw TypeError before)"""
+    from gendr.errors import ParameterError
+    with pytest.raises(ParameterError, match="'subdivision'.*subdivisions, radius"):
+        get_scene("icosphere", subdivision=2)
+
+
+@pytest.mark.parametrize("path", [None, 3, ["a.obj"]])
+def test_load_mesh_needs_a_path(path):
+    with pytest.raises(InputValueError, match="str or os.PathLike"):
+        load_mesh(path)

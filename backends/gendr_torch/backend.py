@@ -4,12 +4,33 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from gendr.errors import DTypeError, ParameterError
+from gendr.errors import BackendUnavailableError, DTypeError, ParameterError
 
 from . import raster
 from .ops import torch_ops
 
 _FLOATS = (torch.float32, torch.float64)
+
+
+def _device(device) -> torch.device:
+    """``device`` as a torch.device this torch can use: ParameterError for a bad name, and
+    BackendUnavailableError for a device this build or machine lacks (at construction, not at the
+    first render)."""
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError):
+        raise ParameterError(f"torch backend parameter device={device!r} is not a torch device "
+                             f"(e.g. 'cpu', 'cuda', 'cuda:1')") from None
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise BackendUnavailableError(f"torch backend device={device!r}: this torch ({torch.__version__}) "
+                                      f"has no CUDA device here (torch.cuda.is_available() is False)")
+    if dev.type == "cuda" and dev.index is not None and dev.index >= torch.cuda.device_count():
+        raise BackendUnavailableError(f"torch backend device={device!r}: only {torch.cuda.device_count()} "
+                                      f"CUDA device(s) here")
+    if dev.type not in ("cpu", "cuda"):
+        raise ParameterError(f"torch backend parameter device={device!r}: gendr's torch backend renders "
+                             f"on 'cpu' or 'cuda'")
+    return dev
 
 
 class TorchBackend:
@@ -26,7 +47,7 @@ class TorchBackend:
     def __init__(self, device=None, compile=False):
         if not isinstance(compile, bool):
             raise ParameterError(f"torch backend parameter compile={compile!r} must be True or False")
-        self.device = torch.device(device) if device is not None else None
+        self.device = None if device is None else _device(device)
         self.compile = compile
 
     def float_array(self, x, name, like=None):
