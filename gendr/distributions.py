@@ -18,7 +18,8 @@ from functools import lru_cache
 from typing import Callable
 
 from .ops import NumpyOps, numpy_ops
-from .params import Learnable, LearnableParams, Param, Registry, validate_params, POSITIVE
+from .params import (Learnable, LearnableParams, Param, Registry, array_value, is_backend_array, plain_number,
+                     validate_params, POSITIVE)
 from .errors import ParameterError
 
 #: how fast F → 0 (left) or → 1 (right) at an end of the support
@@ -331,12 +332,12 @@ def distribution(name, *, reversed: bool = False, shift: float = 0.0, squared: b
         return name
     fam = DISTRIBUTIONS.lookup(name)
     values = validate_params(f"distribution {name!r}", fam.params, params, learnable=True)
-    try:
-        shift = float(shift)
-    except (TypeError, ValueError):
-        raise ParameterError(f"distribution {name!r} parameter shift={shift!r} must be a finite real number") from None
-    if not math.isfinite(shift):
+    if getattr(shift, "requires_grad", False):  # (float() would cut the gradient silently)
+        raise ParameterError(f"distribution {name!r} parameter shift={shift!r} is not learnable: give a number")
+    value = plain_number(shift) if not is_backend_array(shift) else array_value(f"distribution {name!r}", "shift", shift)
+    if value is None or not math.isfinite(value):
         raise ParameterError(f"distribution {name!r} parameter shift={shift!r} must be a finite real number")
+    shift = value
     for flag, v in (("reversed", reversed), ("squared", squared)):
         if not isinstance(v, bool):
             raise ParameterError(f"distribution {name!r} option {flag}={v!r} must be True or False")

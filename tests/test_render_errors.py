@@ -374,6 +374,8 @@ def test_numpy_numbers_are_numbers():
 @pytest.mark.parametrize("make,name", [
     (lambda: gendr.tconorm("yager", p="2"), "p='2'"),
     (lambda: gendr.tconorm("yager", p=True), "p=True"),
+    (lambda: gendr.distribution("logistic", shift="0.1"), "shift='0.1'"),
+    (lambda: gendr.distribution("logistic", shift=torch.tensor(0.1, requires_grad=True)), "is not learnable"),
     (lambda: renderer(cull_backfaces="no"), "cull_backfaces='no'"),
     (lambda: renderer(background="red"), "background='red'"),
     (lambda: renderer(light_direction="abc"), "light_direction='abc'"),
