@@ -16,7 +16,7 @@ from .cameras import Camera
 from .distributions import Distribution, distribution as make_distribution
 from .gbuffer import GBuffer
 from .textures import check_settings as _check_texture_settings, check_textured_inputs
-from .errors import (BackendUnavailableError, InputValueError, ParameterError,
+from .errors import (BackendUnavailableError, DTypeError, InputValueError, ParameterError,
                      ShapeError, UnknownNameError)
 from .params import plain_number
 from .tconorms import TConorm, tconorm as make_tconorm
@@ -334,7 +334,7 @@ class Renderer:
         camera : a :class:`~gendr.cameras.Camera`; batched parameters give one camera per batch
             element (B is the broadcast of the vertex and camera batch sizes).
         vertex_colors : [B, V, 3] or [V, 3], or face_colors : [B, F, 3] or [F, 3] (albedo in
-            [0, 1]; default white). Not both.
+            [0, 1]; default white; float, or integer 0/1 — uint8 is refused as 0..255). Not both.
         texture : [Ht, Wt, 3|4] or [B, Ht, Wt, 3|4] float32/float64 albedo (row 0 at the top; the
             alpha channel is not used), sampled at the interpolated ``uvs`` with the renderer's
             ``texture_filter`` / ``texture_wrap`` (docs/conventions.md, Textures); instead of
@@ -352,7 +352,7 @@ class Renderer:
         Pixel (row i, column j) is sampled at its centre; row 0 is the top of the image.
 
         Raises (:mod:`gendr.errors`): ShapeError (shapes above; a colour, texture or uv batch other
-        than 1 or B), DTypeError (integer vertices, float indices), InputValueError (non-finite
+        than 1 or B), DTypeError (integer vertices, uint8 colours, float indices), InputValueError (non-finite
         values, indices out of range), ParameterError (both colour kinds, uvs without a texture, a
         camera that is not a gendr camera, a tensor ``tau`` or a learnable parameter out of its
         domain), DegenerateCameraError (a camera tensor
@@ -386,6 +386,9 @@ class Renderer:
         for name, value, n in (("vertex_colors", vertex_colors, V), ("face_colors", face_colors, faces_a.shape[0])):
             if value is None:
                 continue
+            if str(getattr(value, "dtype", "")).replace("torch.", "") == "uint8":  # an 8-bit image's colours
+                raise DTypeError(f"{name} are uint8 (0..255?): give float albedo in [0, 1] (divide by 255), "
+                                 f"as for textures")
             c = be.float_array(value, name, like=verts)
             if len(c.shape) not in (2, 3) or c.shape[-1] != 3 or c.shape[-2] != n:
                 raise ShapeError(f"{name} must have shape [B, {n}, 3] or [{n}, 3], got {list(c.shape)}")

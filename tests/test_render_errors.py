@@ -408,3 +408,12 @@ def test_torch_device_is_checked_at_construction():
         with pytest.raises(BackendUnavailableError, match="device='cuda'"):
             renderer(backend="torch", device="cuda")
     assert renderer(backend="torch", device="cpu").backend.device.type == "cpu"
+
+
+@pytest.mark.parametrize("backend", _backends())
+@pytest.mark.parametrize("as_torch", [False, True])
+def test_uint8_colours_are_refused_like_uint8_textures(backend, as_torch):
+    """(255 rendered as RGB 255: an 8-bit image's colours are 0..255, gendr's albedo 0..1)"""
+    c = np.full((4, 3), 255, np.uint8)
+    with pytest.raises(DTypeError, match="vertex_colors are uint8"):
+        renderer(backend=backend).render(V, F, CAM, vertex_colors=torch.as_tensor(c) if as_torch else c)
