@@ -351,9 +351,7 @@ def test_a_tensor_tau_is_checked_at_every_render(backend, value):
 ])
 def test_camera_values_that_are_not_numbers_fail_at_construction(make, name):
     """(they were accepted and failed at render time with raw TypeErrors, differently per backend)"""
-    with pytest.raises(ParameterError) as e:
-        make()
-    assert name in str(e.value)
+    test_strings_and_bools_are_not_numbers(make, name)
 
 
 @pytest.mark.parametrize("backend", _backends())
