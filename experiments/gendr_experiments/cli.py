@@ -20,30 +20,61 @@ def _stored_lines(path) -> int:
         return 0
 
 
-def _floats(text):
-    return [float(x) for x in text.split(",") if x.strip()]
+class UsageError(ValueError):
+    """A bad option value found after parsing: one line naming it, exit status 2 (:func:`main`)."""
 
 
-def _ints(text):
+def _floats(text, option="a list option"):
+    try:
+        return [float(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise UsageError(f"{option} expects comma-separated numbers, got {text!r}") from None
+
+
+def _ints(text, option="a list option"):
     out = []
     for part in text.split(","):
         part = part.strip()
         if not part:
             continue
-        if "-" in part[1:]:
-            a, b = part.split("-", 1) if not part.startswith("-") else (part, part)
-            out += list(range(int(a), int(b) + 1))
-        else:
-            out.append(int(part))
+        try:
+            if "-" in part[1:]:
+                a, b = part.split("-", 1) if not part.startswith("-") else (part, part)
+                if int(b) < int(a):
+                    raise UsageError(f"{option}: the range {part!r} runs backwards")
+                out += list(range(int(a), int(b) + 1))
+            else:
+                out.append(int(part))
+        except ValueError as exc:
+            if isinstance(exc, UsageError):
+                raise
+            raise UsageError(f"{option} expects integers and ranges like 0-26,54, got {part!r}") from None
     return out
 
 
-def _kv(items):
+def _bins(text):
+    """--bins "15-35,35-55": [(15.0, 35.0), (35.0, 55.0)] (angle ranges in degrees, low < high)."""
+    out = []
+    for b in text.split(","):
+        if not b.strip():
+            continue
+        parts = b.strip().split("-")
+        try:
+            lo, hi = (float(x) for x in parts)
+        except ValueError:
+            raise UsageError(f"--bins expects ranges LOW-HIGH in degrees like 15-35,35-55, got {b.strip()!r}") from None
+        if not lo < hi:
+            raise UsageError(f"--bins {b.strip()!r} runs backwards or is empty")
+        out.append((lo, hi))
+    return out
+
+
+def _kv(items, option="--set"):
     out = {}
     for it in items or []:
         k, _, v = it.partition("=")
         if not _:
-            raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {it!r}")
+            raise UsageError(f"{option} expects NAME=VALUE, got {it!r}")
         try:
             out[k.strip().replace("-", "_")] = json.loads(v)
         except json.JSONDecodeError:
@@ -97,8 +128,8 @@ def _instance_config(a) -> dict:
         cfg["instance"] = a.instance
     else:
         cfg["distribution"] = {"name": a.distribution, "reversed": a.reversed, "squared": a.squared,
-                               **_kv(a.dist_param)}
-        cfg["tconorm"] = {"name": a.tconorm, **_kv(a.tconorm_param)}
+                               **_kv(a.dist_param, "--dist-param")}
+        cfg["tconorm"] = {"name": a.tconorm, **_kv(a.tconorm_param, "--tconorm-param")}
     return cfg
 
 
@@ -205,8 +236,16 @@ def select_instances(a) -> list:
     from .figures import EXTRA_COLUMNS, grid_labels
     dl, tl = grid_labels()
     out = []
+    unknown = [v.strip() for v in a.variants.split(",") if v.strip() not in ("plain", "squared")]
+    if unknown:
+        raise UsageError(f"--variants {unknown[0]!r} is not a variant; known: plain, squared")
     if a.instances:
-        out += list(range(len(dl) * 2 * len(tl))) if a.instances == "all" else _ints(a.instances)
+        n = len(dl) * 2 * len(tl)
+        picked = list(range(n)) if a.instances == "all" else _ints(a.instances, "--instances")
+        bad = [i for i in picked if not 0 <= i < n]
+        if bad:
+            raise UsageError(f"--instances {bad[0]} is not an instance: the grid has 0 ... {n - 1} (gendr list grid)")
+        out += picked
     if a.dists or a.tconorms:
         def pick(spec, labels, what, extra=()):
             if not spec or spec == "all":
@@ -264,21 +303,25 @@ def cmd_sweep(a) -> int:
     preset = full_config(a.experiment, base)
     extra = {}
     if a.elevations:
-        extra["elevation"] = _floats(a.elevations)
+        extra["elevation"] = _floats(a.elevations, "--elevations")
     if a.bins:
-        extra[("angle_min", "angle_max")] = [tuple(float(x) for x in b.split("-")) for b in a.bins.split(",")
-                                             if b.strip()]
+        extra[("angle_min", "angle_max")] = _bins(a.bins)
     tau_key = EXPERIMENTS[a.experiment]
-    taus = _floats(a.taus) if a.taus else ([1e-1, 1e-2, 1e-3] if a.experiment == "shape" else [preset[tau_key]])
-    lrs = _floats(a.lrs) if a.lrs else [preset["lr"]]
+    taus = _floats(a.taus, "--taus") if a.taus else ([1e-1, 1e-2, 1e-3] if a.experiment == "shape" else [preset[tau_key]])
+    lrs = _floats(a.lrs, "--lrs") if a.lrs else [preset["lr"]]
+    for option, values in (("--taus", taus), ("--lrs", lrs)):
+        if not all(v > 0 and v != float("inf") for v in values):
+            raise UsageError(f"{option} must be numbers > 0, got {values}")
+    if a.workers is not None and a.workers < 0:
+        raise UsageError(f"--workers must be >= 0 (0: in this process), got {a.workers}")
     kw = dict(store=a.output, workers=a.workers, scheduler=a.scheduler, retry_errors=a.retry_errors,
               progress=not a.quiet, other_code=a.other_code)
     t0 = time.perf_counter()
     n0 = _stored_lines(a.output)
     try:
-        best = best_setting_search(a.experiment, instances, taus=taus, lrs=lrs, seeds=_ints(a.seeds),
+        best = best_setting_search(a.experiment, instances, taus=taus, lrs=lrs, seeds=_ints(a.seeds, "--seeds"),
                                    base=base, extra_axes=extra, refine=not a.no_refine,
-                                   fine_steps=tuple(_floats(a.fine_steps)), **kw)
+                                   fine_steps=tuple(_floats(a.fine_steps, "--fine-steps")), **kw)
     except OtherCodeError as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
@@ -286,12 +329,32 @@ def cmd_sweep(a) -> int:
     if a.csv:
         write_csv(rows, a.csv)
     # lines appended, not distinct keys: a rerun (--other-code rerun, --retry-errors) replaces a row
-    print(f"{_stored_lines(a.output) - n0} runs in {time.perf_counter() - t0:.1f} s; {len(rows)} rows in {a.output}",
-          file=sys.stderr)
+    new = _stored_lines(a.output) - n0
+    errors = [r for r in _last_lines(a.output, new) if r.get("status") == "error"]
+    print(f"{new} runs in {time.perf_counter() - t0:.1f} s; {len(rows)} rows in {a.output}", file=sys.stderr)
     print(f"{'instance':>8s}  {'label':45s} {tau_key:>10s} {'lr':>8s} {'score':>8s}")
     for inst, b in sorted(best.items(), key=lambda kv: kv[1]["score"]):
         print(f"{str(inst) if isinstance(inst, int) else '-':>8s}  {b['label']:45s} {b[tau_key]:10.3g} {b['lr']:8.3g} {b['score']:8.4f}")
+    if errors:
+        print(f"{PROG}: {len(errors)} of the {new} runs ended in an error (rows with status \"error\"; "
+              f"--retry-errors reruns them); the first: {errors[0]['label']}: {errors[0]['error']}", file=sys.stderr)
+        return 1
     return 0
+
+
+def _last_lines(path, n) -> list[dict]:
+    """The last ``n`` rows appended to a results file (the runs of this invocation)."""
+    if n <= 0:
+        return []
+    with open(path) as f:
+        lines = [line for line in f if line.strip()]
+    out = []
+    for line in lines[-n:]:
+        try:
+            out.append(json.loads(line))
+        except json.JSONDecodeError:
+            pass
+    return out
 
 
 def _results(files, experiment=None) -> list[dict]:
@@ -385,8 +448,9 @@ def cmd_tune(a) -> int:
         base["backend"] = a.backend
     try:
         res = tune(a.target, budget=a.budget, store=a.output, protocol=a.protocol, instances=instances,
-                   taus=_floats(a.taus), lrs=_floats(a.lrs) if a.lrs else None, seeds=_ints(a.seeds),
-                   fine_steps=tuple(_floats(a.fine_steps)), base=base, workers=a.workers, top=a.top,
+                   taus=_floats(a.taus, "--taus"), lrs=_floats(a.lrs, "--lrs") if a.lrs else None,
+                   seeds=_ints(a.seeds, "--seeds"), fine_steps=tuple(_floats(a.fine_steps, "--fine-steps")),
+                   base=base, workers=a.workers, top=a.top,
                    other_code=a.other_code)
     except GendrError as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
@@ -603,12 +667,17 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     """Run the paper's experiments: shape and pose optimisation, sweeps, findings, verify, figures."""
+    from gendr.errors import GendrError
     parser = build_parser()
     try:
         a = parser.parse_args(argv)
     except SystemExit as e:
         return e.code if isinstance(e.code, int) else (0 if e.code is None else 2)
-    return a.func(a)
+    try:
+        return a.func(a)
+    except (UsageError, GendrError) as exc:  # bad input: one line, no traceback
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -23,7 +23,8 @@ __all__ = ["instance_from_config", "grid_instance", "make_renderer", "hard_rende
            "load_target_mesh", "soft_iou_loss", "iou_loss_per_view", "mesh_laplacian", "laplacian_loss", "flatten_edges",
            "flatten_loss", "rotation_angle_deg", "axis_angle_to_matrix", "config_hash", "versions",
            "log_tau_schedule", "PAPER_DATA_ENV", "paper_data_dir", "resolve_data_path", "load_template",
-           "source_hash", "cpu_info", "provenance", "file_digest", "data_digests", "preset_config", "set_threads"]
+           "source_hash", "cpu_info", "provenance", "file_digest", "data_digests", "preset_config", "check_config",
+           "CONFIG_DOMAINS", "set_threads"]
 
 
 # ------------------------------------------------------------------------------------------------
@@ -75,7 +76,48 @@ def preset_config(experiment: str, presets: dict, config: dict | None, overrides
     if bad:
         raise ParameterError(f"unknown {experiment} config keys {bad}; known: {sorted(cfg)}")
     cfg.update(given)
+    check_config(experiment, cfg)
     return cfg
+
+
+def _is_int(v):
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _is_num(v):
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+#: config key -> (test, what it must be): checked for every run before it starts (a value outside
+#: would end in an error row, or worse, in a "result" of 0 steps)
+CONFIG_DOMAINS = {
+    **{k: (lambda v: _is_int(v) and v >= 1, "an integer >= 1")
+       for k in ("steps", "views", "image_size", "pairs")},
+    **{k: (lambda v: _is_int(v) and v >= 0, "an integer >= 0") for k in ("subdivisions", "seed")},
+    **{k: (lambda v: _is_num(v) and v > 0, "a finite number > 0")
+       for k in ("lr", "tau", "tau_start", "tau_end", "distance", "template_scale", "success_degrees",
+                 "distance_min", "distance_max", "init_distance_min", "init_distance_max")},
+    **{k: (lambda v: _is_num(v) and v >= 0, "a finite number >= 0") for k in ("lambda_lap", "lambda_flat")},
+    **{k: (lambda v: _is_num(v) and 0 < v < 180, "in (0, 180) degrees") for k in ("fov_y", "fov_min", "fov_max")},
+    **{k: (lambda v: _is_num(v) and 0 <= v <= 180, "in [0, 180] degrees")
+       for k in ("angle_min", "angle_max", "init_view_angle_min", "init_view_angle_max")},
+    "elevation": (_is_num, "a finite number (degrees)"),
+    "eps": (lambda v: _is_num(v) and 0 <= v < 1, "in [0, 1)"),
+    "cutoff": (lambda v: v is None or (_is_num(v) and v > 0), "None or a number > 0"),
+    "metric": (lambda v: v in ("final", "best"), "'final' or 'best'"),
+}
+
+
+def check_config(experiment: str, cfg: dict) -> None:
+    """:class:`~gendr.errors.ParameterError` naming the first setting of ``cfg`` outside its domain
+    (:data:`CONFIG_DOMAINS`), or a range whose minimum exceeds its maximum."""
+    for k, (ok, want) in CONFIG_DOMAINS.items():
+        if k in cfg and not ok(cfg[k]):
+            raise ParameterError(f"{experiment} setting {k}={cfg[k]!r} must be {want}")
+    for lo, hi in (("angle_min", "angle_max"), ("distance_min", "distance_max"), ("fov_min", "fov_max"),
+                   ("init_distance_min", "init_distance_max"), ("init_view_angle_min", "init_view_angle_max")):
+        if lo in cfg and hi in cfg and cfg[lo] > cfg[hi]:
+            raise ParameterError(f"{experiment} settings {lo}={cfg[lo]!r} > {hi}={cfg[hi]!r}: not a range")
 
 
 def make_renderer(dist, tcn, tau, image_size, *, backend="torch", eps=1e-4, cutoff=None, **backend_options):

@@ -326,7 +326,8 @@ def aggregate(rows) -> dict:
     rows = list(rows)
     exp = rows[0]["experiment"]
     vals = [r["metric"] if r.get("metric") is not None else (1.0 if exp == "shape" else 180.0) for r in rows]
-    out = {"n": len(rows), "mean_metric": float(np.mean(vals)), "seconds": float(np.mean([r["seconds"] for r in rows]))}
+    out = {"n": len(rows), "mean_metric": float(np.mean(vals)), "seconds": float(np.mean([r["seconds"] for r in rows])),
+           "errors": sum(r.get("status") == "error" for r in rows)}
     if exp == "pose":
         if any("pairs" in r for r in rows):  # lookat rows: a batch of pairs each
             pairs = sum(int(r.get("pairs") or r["config"].get("pairs", 1)) for r in rows)
@@ -378,14 +379,17 @@ def best_setting_search(experiment: str, instances, *, taus, lrs, seeds=(0,), ba
 
 
 def summarize_best(rows, experiment: str | None = None) -> dict:
-    """instance -> the best setting: ``{tau(_start), lr, score, mean_metric, (success_rate), n, label}``.
-    Runs outside the grid (no instance index, e.g. the "average" aggregation) are keyed by label."""
+    """instance -> the best setting: ``{tau(_start), lr, score, mean_metric, (success_rate), n, errors, label}``.
+    Runs outside the grid (no instance index, e.g. the "average" aggregation) are keyed by label.
+    Settings whose runs all ended in an error have no result and are left out."""
     rows = [r for r in rows if experiment is None or r["experiment"] == experiment]
     if not rows:
         return {}
     tau_key = EXPERIMENTS[rows[0]["experiment"]]
     best = {}
     for (inst, label, tau, lr), grp in _group(rows, ("instance", "label", tau_key, "lr")).items():
+        if all(r.get("status") == "error" for r in grp):
+            continue  # no result (a bad target, a crash): not a score of 1, and no finer grid around it
         agg = aggregate(grp)
         agg.update({tau_key: tau, "lr": lr, "label": label})
         key = inst if inst is not None else label  # runs outside the grid (e.g. "average") by label

@@ -1,0 +1,65 @@
+"""Bad input to `gendr experiment`: one line naming the value, exit status 2, before any run and
+without writing anything; runs that fail anyway are reported, not shown as results."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+pytest.importorskip("torch")
+
+from gendr.cli import main as gendr_main  # noqa: E402
+from gendr.errors import ParameterError  # noqa: E402
+from gendr_experiments.common import check_config  # noqa: E402
+from gendr_experiments.sweep import summarize_best  # noqa: E402
+
+TINY = ["--set", "image_size=8", "--set", "views=1", "--set", "steps=1"]
+
+
+@pytest.mark.parametrize("argv,words", [
+    (["sweep", "--experiment", "shape", "--instances", "99999"], "--instances 99999 is not an instance"),
+    (["sweep", "--experiment", "shape", "--instances", "5-2"], "runs backwards"),
+    (["sweep", "--experiment", "shape", "--instances", "abc"], "--instances expects integers"),
+    (["sweep", "--experiment", "shape", "--instances", "1", "--variants", "squarred"], "'squarred' is not a variant"),
+    (["sweep", "--experiment", "shape", "--instances", "1", "--taus", "abc"], "--taus expects comma-separated numbers"),
+    (["sweep", "--experiment", "shape", "--instances", "1", "--taus", "0"], "--taus must be numbers > 0"),
+    (["sweep", "--experiment", "shape", "--instances", "1", "--lrs", "-1"], "--lrs must be numbers > 0"),
+    (["sweep", "--experiment", "shape", "--instances", "1", "--set", "image_size16"], "--set expects NAME=VALUE"),
+    (["sweep", "--experiment", "shape", "--instances", "1", "--set", "views=0"], "views=0 must be an integer >= 1"),
+    (["sweep", "--experiment", "shape", "--instances", "1", "--set", "steps=2.5"], "steps=2.5 must be an integer"),
+    (["sweep", "--experiment", "pose", "--instances", "1", "--bins", "35-15"], "--bins '35-15' runs backwards"),
+    (["shape", "--steps", "-1"], "steps=-1 must be an integer >= 1"),
+    (["shape", "--lr", "0"], "lr=0.0 must be a finite number > 0"),
+    (["shape", "--dist-param", "shape"], "--dist-param expects NAME=VALUE"),
+    (["pose", "--tau-start", "-1"], "tau_start=-1.0 must be a finite number > 0"),
+    (["pose", "--angle-min", "80", "--angle-max", "10"], "angle_min=80.0 > angle_max=10.0"),
+])
+def test_bad_options_are_one_line_usage_errors(tmp_path, capsys, argv, words):
+    out = tmp_path / "rows.jsonl"
+    code = gendr_main(["experiment", *argv, *(["-o", str(out)] if argv[0] == "sweep" else [])])
+    err = capsys.readouterr().err
+    assert code == 2 and words in err and "Traceback" not in err, err
+    assert not out.exists()
+
+
+def test_a_sweep_whose_runs_fail_says_so_and_exits_1(tmp_path, capsys):
+    """(it printed the failed instance with score 1.0000 and exited 0)"""
+    out = tmp_path / "rows.jsonl"
+    code = gendr_main(["experiment", "sweep", "--experiment", "shape", "--dists", "logistic", "--tconorms", "max",
+                       "--variants", "plain", "--taus", "0.01", "--no-refine", "--workers", "0", "-q", *TINY,
+                       "--set", "target=no_such_mesh.obj", "-o", str(out)])
+    captured = capsys.readouterr()
+    assert code == 1
+    assert "1 of the 1 runs ended in an error" in captured.err and "no_such_mesh.obj" in captured.err
+    rows = [json.loads(line) for line in out.read_text().splitlines()]
+    assert [r["status"] for r in rows] == ["error"]
+    assert summarize_best(rows) == {}  # no result, so no score (figures leave the cell gray)
+    assert "logistic|max" not in captured.out
+
+
+@pytest.mark.parametrize("key,value", [("steps", 0), ("steps", True), ("lr", float("nan")), ("eps", 1.0),
+                                       ("fov_y", 180.0), ("cutoff", 0.0), ("metric", "worst"), ("seed", -1)])
+def test_check_config_names_the_setting(key, value):
+    with pytest.raises(ParameterError, match=f"shape setting {key}="):
+        check_config("shape", {key: value})
+    check_config("shape", {"steps": 1, "lr": 0.1, "eps": 0.0, "fov_y": 30.0, "cutoff": None, "metric": "best"})
