@@ -63,3 +63,30 @@ def test_check_config_names_the_setting(key, value):
     with pytest.raises(ParameterError, match=f"shape setting {key}="):
         check_config("shape", {key: value})
     check_config("shape", {"steps": 1, "lr": 0.1, "eps": 0.0, "fov_y": 30.0, "cutoff": None, "metric": "best"})
+
+
+@pytest.mark.parametrize("argv,words", [
+    (["verify", "{missing}"], "does not exist"),
+    (["verify", "{dir}"], "is a directory"),
+    (["findings", "{notrow}"], "line 1 is not a result row"),
+    (["verify", "{rows}", "--sample", "0"], "--sample must be >= 1"),
+    (["verify", "{rows}", "--tolerance", "-1"], "--tolerance must be >= 0"),
+    (["verify", "{rows}", "--json", "{dir}/nodir/v.json"], "does not exist"),
+    (["cost", "{rows}", "--hours", "0"], "--hours must be > 0"),
+    (["figures", "{rows}", "--fraction", "0", "-o", "{dir}/figs"], "--fraction must be in (0, 1]"),
+    (["findings", "{rows}", "--noise", "-1"], "--noise must be >= 0"),
+    (["sweep", "--experiment", "shape", "--instances", "1", "--csv", "{dir}/nodir/x.csv", "-o", "{dir}/r.jsonl"],
+     "does not exist"),
+    (["sweep", "--experiment", "shape", "--instances", "1", "-o", "{dir}"], "is a directory"),
+    (["tune", "--target", "icosphere", "--budget", "10", "--top", "0"], "--top must be >= 1"),
+])
+def test_results_files_and_outputs_are_checked_before_any_work(tmp_path, capsys, argv, words):
+    (tmp_path / "notrow.jsonl").write_text("[1, 2]\n")
+    (tmp_path / "rows.jsonl").write_text(json.dumps({"key": "k", "experiment": "shape", "status": "ok"}) + "\n")
+    paths = {"missing": tmp_path / "missing.jsonl", "dir": tmp_path, "notrow": tmp_path / "notrow.jsonl",
+             "rows": tmp_path / "rows.jsonl"}
+    before = sorted(p.name for p in tmp_path.iterdir())
+    code = gendr_main(["experiment", *[a.format(**paths) for a in argv]])
+    err = capsys.readouterr().err
+    assert code == 2 and words in err and "Traceback" not in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == before

@@ -314,6 +314,9 @@ def cmd_sweep(a) -> int:
             raise UsageError(f"{option} must be numbers > 0, got {values}")
     if a.workers is not None and a.workers < 0:
         raise UsageError(f"--workers must be >= 0 (0: in this process), got {a.workers}")
+    _writable(a.csv, "--csv")
+    if Path(a.output).is_dir():  # (a missing folder is made: the store creates it)
+        raise UsageError(f"-o {a.output!r} is a directory; name the JSONL file of rows")
     kw = dict(store=a.output, workers=a.workers, scheduler=a.scheduler, retry_errors=a.retry_errors,
               progress=not a.quiet, other_code=a.other_code)
     t0 = time.perf_counter()
@@ -358,9 +361,32 @@ def _last_lines(path, n) -> list[dict]:
 
 
 def _results(files, experiment=None) -> list[dict]:
-    """The rows of results files (of one experiment, if given)."""
+    """The rows of results files (of one experiment, if given); a path that is not a file, or a line
+    that is JSON but not a row, is a UsageError naming it."""
     from .sweep import load_rows
-    return [r for f in files or [] for r in load_rows(f) if experiment is None or r["experiment"] == experiment]
+    for f in files or []:
+        if not Path(f).is_file():
+            raise UsageError(f"results file {str(f)!r} " + ("is a directory" if Path(f).is_dir() else "does not exist"))
+    try:
+        rows = [r for f in files or [] for r in load_rows(f)]
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    for r in rows:
+        if "experiment" not in r:
+            raise UsageError(f"{files}: a row without 'experiment' is not a result row: {json.dumps(r)[:80]}")
+    return [r for r in rows if experiment is None or r["experiment"] == experiment]
+
+
+def _writable(path, option):
+    """Check an output file's folder before the work that fills it (a missing folder or a directory
+    named as the file failed only at the end)."""
+    if path is None:
+        return
+    p = Path(path)
+    if p.is_dir():
+        raise UsageError(f"{option} {str(path)!r} is a directory; name the file to write")
+    if not p.parent.is_dir():
+        raise UsageError(f"{option} {str(path)!r}: the folder {str(p.parent)!r} does not exist")
 
 
 def _no_rows(files, what="rows") -> int:
@@ -372,9 +398,16 @@ def cmd_verify(a) -> int:
     from .common import cpu_info
     from .sweep import verify_rows
     _apply_data(a)
+    if a.sample is not None and a.sample < 1:
+        raise UsageError(f"--sample must be >= 1 (omit it to re-run every row), got {a.sample}")
+    if a.tolerance is not None and not a.tolerance >= 0:
+        raise UsageError(f"--tolerance must be >= 0, got {a.tolerance}")
+    _writable(a.json, "--json")
     rows = _results(a.results)
     if not rows:
         return _no_rows(a.results)
+    if not any(r.get("status") == "ok" for r in rows):
+        return _no_rows(a.results, "finished (status ok) rows to re-run")
     report = verify_rows(rows, sample=a.sample, seed=a.seed, tolerance=a.tolerance)
     print(f"{'key':16s} {'label':40s} {'stored':>9s} {'now':>9s} {'drift':>9s} {'tol':>6s} code, cpu")
     for v in report:
@@ -394,6 +427,8 @@ def cmd_verify(a) -> int:
 
 def cmd_findings(a) -> int:
     from .findings import findings_markdown, pose_similarity, shape_findings
+    if not a.noise >= 0:
+        raise UsageError(f"--noise must be >= 0, got {a.noise}")
     shape, pose = _results(a.results, "shape"), _results(a.pose, "pose")
     if not shape:
         return _no_rows(a.results, "shape rows")
@@ -407,6 +442,8 @@ def cmd_findings(a) -> int:
 
 def cmd_figures(a) -> int:
     from .figures import make_figures
+    if not 0 < a.fraction <= 1:
+        raise UsageError(f"--fraction must be in (0, 1], got {a.fraction}")
     rows = _results(a.results)
     if not rows:
         return _no_rows(a.results)
@@ -418,6 +455,9 @@ def cmd_figures(a) -> int:
 def cmd_cost(a) -> int:
     from .cost import STUDIES, cost_report, format_report
     _apply_data(a)
+    if not (a.hours > 0 and 0 < a.efficiency <= 1):
+        raise UsageError(f"--hours must be > 0 and --efficiency in (0, 1], got {a.hours:g} and {a.efficiency:g}")
+    _writable(a.json, "--json")
     rows = _results(a.results)
     if not rows:
         return _no_rows(a.results)
@@ -438,6 +478,9 @@ def cmd_tune(a) -> int:
     from gendr.errors import GendrError
     from .tune import tune
     _apply_data(a)
+    if a.top < 1:
+        raise UsageError(f"--top must be >= 1, got {a.top}")
+    _writable(a.json, "--json")
     try:
         instances = select_instances(a) if (a.instances or a.dists or a.tconorms) else None
     except ValueError as exc:

@@ -180,14 +180,16 @@ def load_rows(path) -> list[dict]:
     if not path.exists():
         return []
     by_key = {}
-    for line in path.read_text().splitlines():
+    for i, line in enumerate(path.read_text().splitlines(), 1):
         line = line.strip()
         if not line:
             continue
         try:
             row = json.loads(line)
         except json.JSONDecodeError:
-            continue
+            continue  # a torn line (a run killed while writing); its key reruns
+        if not isinstance(row, dict) or "key" not in row:
+            raise ValueError(f"{path}: line {i} is not a result row (a JSON object with a 'key'): {line[:60]}")
         by_key[row["key"]] = row
     return list(by_key.values())
 
