@@ -33,6 +33,7 @@ TINY = ["--set", "image_size=8", "--set", "views=1", "--set", "steps=1"]
     (["shape", "--dist-param", "shape"], "--dist-param expects NAME=VALUE"),
     (["pose", "--tau-start", "-1"], "tau_start=-1.0 must be a finite number > 0"),
     (["pose", "--angle-min", "80", "--angle-max", "10"], "angle_min=80.0 > angle_max=10.0"),
+    (["shape", "--instance", "5", "--distribution", "cauchy"], "do not combine it with --distribution"),
 ])
 def test_bad_options_are_one_line_usage_errors(tmp_path, capsys, argv, words):
     out = tmp_path / "rows.jsonl"
@@ -75,6 +76,8 @@ def test_check_config_names_the_setting(key, value):
     (["cost", "{rows}", "--hours", "0"], "--hours must be > 0"),
     (["figures", "{rows}", "--fraction", "0", "-o", "{dir}/figs"], "--fraction must be in (0, 1]"),
     (["findings", "{rows}", "--noise", "-1"], "--noise must be >= 0"),
+    (["findings", "{rows}", "--pose", "{rows}"], "no pose rows"),
+    (["figures", "{rows}", "--experiment", "pose", "-o", "{dir}/figs"], "no pose rows"),
     (["sweep", "--experiment", "shape", "--instances", "1", "--csv", "{dir}/nodir/x.csv", "-o", "{dir}/r.jsonl"],
      "does not exist"),
     (["sweep", "--experiment", "shape", "--instances", "1", "-o", "{dir}"], "is a directory"),
@@ -90,3 +93,10 @@ def test_results_files_and_outputs_are_checked_before_any_work(tmp_path, capsys,
     err = capsys.readouterr().err
     assert code == 2 and words in err and "Traceback" not in err, err
     assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+def test_help_shows_each_default_once(capsys):
+    """(ArgumentDefaultsHelpFormatter appended "(default: None)" after "(default: the protocol's)")"""
+    assert gendr_main(["experiment", "shape", "--help"]) == 0
+    out = capsys.readouterr().out
+    assert "(default: None)" not in out and "(default: the protocol's)" in out

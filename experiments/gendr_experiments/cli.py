@@ -125,6 +125,12 @@ def _instance_config(a) -> dict:
     if getattr(a, "protocol", None):
         cfg["protocol"] = a.protocol
     if a.instance is not None:
+        given = [o for o, v in (("--distribution", a.distribution != "logistic"), ("--dist-param", a.dist_param),
+                                ("--reversed", a.reversed), ("--squared", a.squared),
+                                ("--tconorm", a.tconorm != "probabilistic"), ("--tconorm-param", a.tconorm_param)) if v]
+        if given:
+            raise UsageError(f"--instance {a.instance} picks the distribution and T-conorm; do not combine it with "
+                             f"{', '.join(given)}")
         cfg["instance"] = a.instance
     else:
         cfg["distribution"] = {"name": a.distribution, "reversed": a.reversed, "squared": a.squared,
@@ -430,6 +436,8 @@ def cmd_findings(a) -> int:
     if not a.noise >= 0:
         raise UsageError(f"--noise must be >= 0, got {a.noise}")
     shape, pose = _results(a.results, "shape"), _results(a.pose, "pose")
+    if a.pose and not pose:
+        return _no_rows(a.pose, "pose rows")
     if not shape:
         return _no_rows(a.results, "shape rows")
     found = shape_findings(shape, noise=a.noise)
@@ -444,9 +452,9 @@ def cmd_figures(a) -> int:
     from .figures import make_figures
     if not 0 < a.fraction <= 1:
         raise UsageError(f"--fraction must be in (0, 1], got {a.fraction}")
-    rows = _results(a.results)
+    rows = _results(a.results, a.experiment)
     if not rows:
-        return _no_rows(a.results)
+        return _no_rows(a.results, f"{a.experiment} rows" if a.experiment else "rows")
     for p in make_figures(rows, a.output, experiment=a.experiment, fraction=a.fraction):
         print(p)
     return 0
@@ -520,8 +528,17 @@ def cmd_recon(a) -> int:
 
 # ------------------------------------------------------------------------------------------------
 
+class _DefaultsFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Defaults in --help, except where the help already says it (``(default: the protocol's)``)
+    or there is none to show."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        return text if "(default" in text or action.default is None else super()._get_help_string(action)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    F = argparse.ArgumentDefaultsHelpFormatter
+    F = _DefaultsFormatter
     parser = argparse.ArgumentParser(
         prog=PROG, formatter_class=argparse.RawDescriptionHelpFormatter,
         description="The experiments of the GenDR paper (§5) on gendr. See docs/experiments.md.",
