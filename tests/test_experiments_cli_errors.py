@@ -100,3 +100,21 @@ def test_help_shows_each_default_once(capsys):
     assert gendr_main(["experiment", "shape", "--help"]) == 0
     out = capsys.readouterr().out
     assert "(default: None)" not in out and "(default: the protocol's)" in out
+
+
+@pytest.mark.parametrize("argv,words", [
+    (["recon"], "give exactly one of --data DIR and --synthetic"),
+    (["recon", "--synthetic", "--data", "{dir}"], "give exactly one of"),
+    (["recon", "--data", "{dir}/nodir"], "is not a directory"),
+    (["recon", "--synthetic", "--steps", "-1"], "--steps must be >= 1"),
+    (["recon", "--synthetic", "--batch-size", "0"], "--batch-size must be >= 1"),
+    (["recon", "--synthetic", "--eval-views", "99"], "view ids are 0 ... 23"),
+    (["recon", "--synthetic", "--device", "gpu"], "is not a torch device"),
+])
+def test_recon_options_are_checked_before_anything_is_written(tmp_path, capsys, argv, words):
+    """(each failed after generating data or training, leaving the -o folder behind)"""
+    out = tmp_path / "out"
+    code = gendr_main(["experiment", *[a.format(dir=tmp_path) for a in argv], "-o", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and words in err and "Traceback" not in err, err
+    assert not out.exists()

@@ -19,12 +19,14 @@ voxels: class-wise mean 3D IoU.
 
 **Conventions to verify on the real data** (they are taken from SoftRas' code, not checked against
 the real files here, which are not downloaded): the view camera and the voxel axis order
-(``voxel_order``). ``gendr experiment recon --check-data DIR`` renders the 24 views of a voxelised
-object next to the data's alpha so a mismatch is visible at once.
+(``voxel_order``). No command checks them yet (an earlier version of this text promised a
+``--check-data`` option that was never built): render an object's 24 views with :func:`view_camera`
+and compare them with the data's alpha before trusting IoUs on the real data.
 """
 from __future__ import annotations
 
 import json
+import math
 import time
 from pathlib import Path
 
@@ -32,6 +34,7 @@ import numpy as np
 import torch
 
 import gendr
+from gendr.errors import ParameterError
 from gendr.scenes import icosphere
 
 from .common import (flatten_edges, flatten_loss, instance_from_config, iou_loss_per_view, laplacian_loss,
@@ -326,17 +329,48 @@ def add_arguments(p):
     p.add_argument("--seed", type=int, default=0)
 
 
+def check_cli(a) -> None:
+    """The options' values, checked before anything is written or trained (ParameterError naming
+    the first bad one; a CUDA device this torch lacks: BackendUnavailableError)."""
+    from gendr.errors import BackendUnavailableError
+    if a.synthetic == bool(a.data):
+        raise ParameterError("give exactly one of --data DIR and --synthetic")
+    if a.data and not Path(a.data).is_dir():
+        raise ParameterError(f"--data {a.data!r} is not a directory")
+    if Path(a.output).exists() and not Path(a.output).is_dir():
+        raise ParameterError(f"-o {a.output!r} is a file; name the output directory")
+    for option, value in (("--steps", a.steps), ("--batch-size", a.batch_size)):
+        if value < 1:
+            raise ParameterError(f"{option} must be >= 1, got {value}")
+    for option, value in (("--tau", a.tau), ("--lr", a.lr)):
+        if not (value > 0 and math.isfinite(value)):
+            raise ParameterError(f"{option} must be a finite number > 0, got {value}")
+    if a.render_size is not None and a.render_size < 1:
+        raise ParameterError(f"--render-size must be >= 1, got {a.render_size}")
+    if a.eval_views:
+        try:
+            views = [int(v) for v in a.eval_views.split(",")]
+        except ValueError:
+            raise ParameterError(f"--eval-views expects comma-separated view ids, got {a.eval_views!r}") from None
+        if not all(0 <= v < NUM_VIEWS for v in views):
+            raise ParameterError(f"--eval-views {a.eval_views!r}: view ids are 0 ... {NUM_VIEWS - 1}")
+    try:
+        dev = torch.device(a.device)
+    except RuntimeError:
+        raise ParameterError(f"--device {a.device!r} is not a torch device (e.g. cpu, cuda)") from None
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise BackendUnavailableError(f"--device {a.device!r}: this torch has no CUDA device here")
+
+
 def main_cli(a) -> int:
+    check_cli(a)
     out = Path(a.output)
     out.mkdir(parents=True, exist_ok=True)
     if a.synthetic:
         data_dir = out / "data"
         classes = make_synthetic_dataset(data_dir, image_size=64)
-    elif a.data:
-        data_dir, classes = Path(a.data), a.classes.split(",")
     else:
-        print("gendr experiment recon: error: give --data DIR or --synthetic")
-        return 2
+        data_dir, classes = Path(a.data), a.classes.split(",")
     cfg = dict(distribution=a.distribution, tconorm=a.tconorm, instance=a.instance, tau=a.tau, lr=a.lr,
                batch_size=a.batch_size, steps=a.steps, subdivisions=a.subdivisions, render_size=a.render_size,
                device=a.device, backend=a.backend, seed=a.seed)
