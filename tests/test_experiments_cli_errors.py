@@ -81,6 +81,10 @@ def test_check_config_names_the_setting(key, value):
     (["sweep", "--experiment", "shape", "--instances", "1", "--csv", "{dir}/nodir/x.csv", "-o", "{dir}/r.jsonl"],
      "does not exist"),
     (["sweep", "--experiment", "shape", "--instances", "1", "-o", "{dir}"], "is a directory"),
+    (["sweep", "--experiment", "shape", "--instances", "1", "--scheduler", "nonsense", "-o", "{dir}/r.jsonl"],
+     "is not a Dask address"),
+    (["sweep", "--experiment", "shape", "--instances", "1", "--scheduler", "tcp://127.0.0.1:8786", "--workers", "2",
+      "-o", "{dir}/r.jsonl"], "give one"),
     (["tune", "--target", "icosphere", "--budget", "10", "--top", "0"], "--top must be >= 1"),
 ])
 def test_results_files_and_outputs_are_checked_before_any_work(tmp_path, capsys, argv, words):

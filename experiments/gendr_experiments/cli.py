@@ -320,6 +320,12 @@ def cmd_sweep(a) -> int:
             raise UsageError(f"{option} must be numbers > 0, got {values}")
     if a.workers is not None and a.workers < 0:
         raise UsageError(f"--workers must be >= 0 (0: in this process), got {a.workers}")
+    if a.scheduler is not None:
+        if a.workers is not None:
+            raise UsageError("--scheduler runs on the cluster's workers; --workers is for local runs: give one")
+        import re
+        if not re.fullmatch(r"(tcp|tls|inproc|ucx)://[^\s:/]+(:\d+)?/?", a.scheduler):
+            raise UsageError(f"--scheduler {a.scheduler!r} is not a Dask address like tcp://HOST:8786")
     _writable(a.csv, "--csv")
     if Path(a.output).is_dir():  # (a missing folder is made: the store creates it)
         raise UsageError(f"-o {a.output!r} is a directory; name the JSONL file of rows")
