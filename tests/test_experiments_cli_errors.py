@@ -81,6 +81,7 @@ def test_check_config_names_the_setting(key, value):
     (["sweep", "--experiment", "shape", "--instances", "1", "--csv", "{dir}/nodir/x.csv", "-o", "{dir}/r.jsonl"],
      "does not exist"),
     (["sweep", "--experiment", "shape", "--instances", "1", "-o", "{dir}"], "is a directory"),
+    (["sweep", "--experiment", "shape", "--instances", "1", "-o", "{dir}/notes.csv"], "refusing to append"),
     (["sweep", "--experiment", "shape", "--instances", "1", "--scheduler", "nonsense", "-o", "{dir}/r.jsonl"],
      "is not a Dask address"),
     (["sweep", "--experiment", "shape", "--instances", "1", "--scheduler", "tcp://127.0.0.1:8786", "--workers", "2",
@@ -89,6 +90,7 @@ def test_check_config_names_the_setting(key, value):
 ])
 def test_results_files_and_outputs_are_checked_before_any_work(tmp_path, capsys, argv, words):
     (tmp_path / "notrow.jsonl").write_text("[1, 2]\n")
+    (tmp_path / "notes.csv").write_text("key,metric\n")
     (tmp_path / "rows.jsonl").write_text(json.dumps({"key": "k", "experiment": "shape", "status": "ok"}) + "\n")
     paths = {"missing": tmp_path / "missing.jsonl", "dir": tmp_path, "notrow": tmp_path / "notrow.jsonl",
              "rows": tmp_path / "rows.jsonl"}

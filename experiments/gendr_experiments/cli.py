@@ -327,8 +327,7 @@ def cmd_sweep(a) -> int:
         if not re.fullmatch(r"(tcp|tls|inproc|ucx)://[^\s:/]+(:\d+)?/?", a.scheduler):
             raise UsageError(f"--scheduler {a.scheduler!r} is not a Dask address like tcp://HOST:8786")
     _writable(a.csv, "--csv")
-    if Path(a.output).is_dir():  # (a missing folder is made: the store creates it)
-        raise UsageError(f"-o {a.output!r} is a directory; name the JSONL file of rows")
+    _rows_file(a.output)
     kw = dict(store=a.output, workers=a.workers, scheduler=a.scheduler, retry_errors=a.retry_errors,
               progress=not a.quiet, other_code=a.other_code)
     t0 = time.perf_counter()
@@ -387,6 +386,23 @@ def _results(files, experiment=None) -> list[dict]:
         if "experiment" not in r:
             raise UsageError(f"{files}: a row without 'experiment' is not a result row: {json.dumps(r)[:80]}")
     return [r for r in rows if experiment is None or r["experiment"] == experiment]
+
+
+def _rows_file(path):
+    """-o of a sweep or tune: a JSONL file of rows to append to (new, or starting with a row); not a
+    directory, not some other file (rows were appended to a CSV)."""
+    p = Path(path)
+    if p.is_dir():
+        raise UsageError(f"-o {str(path)!r} is a directory; name the JSONL file of rows")
+    if p.is_file() and p.stat().st_size:
+        with open(p, "rb") as f:
+            first = f.readline(1 << 20)
+        try:
+            ok = isinstance(json.loads(first), dict)
+        except (ValueError, UnicodeDecodeError):
+            ok = False
+        if not ok:
+            raise UsageError(f"-o {str(path)!r} exists and is not a JSONL file of result rows; refusing to append")
 
 
 def _writable(path, option):
@@ -495,6 +511,7 @@ def cmd_tune(a) -> int:
     if a.top < 1:
         raise UsageError(f"--top must be >= 1, got {a.top}")
     _writable(a.json, "--json")
+    _rows_file(a.output)
     try:
         instances = select_instances(a) if (a.instances or a.dists or a.tconorms) else None
     except ValueError as exc:
