@@ -315,12 +315,8 @@ class DrJitBackend:
             ti, ui, uvf = texture
             tflat = self._flat(wrapped.get("texture", ti.data if ti.kind != "torch" else None), ti, T)
             uflat = self._flat(wrapped.get("uvs", ui.data if ui.kind != "torch" else None), ui, T)
-            Bt, Ht, Wt, C = (1, *ti.shape) if len(ti.shape) == 3 else ti.shape
-            if Bt not in (1, max(Bv, Bc)):
-                raise ShapeError(f"texture has batch size {Bt}, the render has {max(Bv, Bc)}")
+            Bt, Ht, Wt, C = (1, *ti.shape) if len(ti.shape) == 3 else ti.shape  # (batches 1 or B: the facade checked)
             Bu, Tn = (1, ui.shape[0]) if len(ui.shape) == 2 else ui.shape[:2]
-            if Bu not in (1, max(Bv, Bc)):
-                raise ShapeError(f"uvs have batch size {Bu}, the render has {max(Bv, Bc)}")
             tex = (tflat, Bt, Ht, Wt, C, uflat, Bu, Tn, T.UInt32(np.asarray(uvf).reshape(-1).astype(np.uint32)))
             out, B = raster.render(settings, camera, ops, T, P, Bc, vflat, Bv, V, faces, col, per_face, tau_arr, tex)
             return T.Tensor(out, shape=(B, H, W, 4))

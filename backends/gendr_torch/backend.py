@@ -12,7 +12,7 @@ from .ops import torch_ops
 _FLOATS = (torch.float32, torch.float64)
 
 
-def _device(device) -> torch.device:
+def torch_device(device) -> torch.device:
     """``device`` as a torch.device this torch can use: ParameterError for a bad name, and
     BackendUnavailableError for a device this build or machine lacks (at construction, not at the
     first render)."""
@@ -47,7 +47,7 @@ class TorchBackend:
     def __init__(self, device=None, compile=False):
         if not isinstance(compile, bool):
             raise ParameterError(f"torch backend parameter compile={compile!r} must be True or False")
-        self.device = None if device is None else _device(device)
+        self.device = None if device is None else torch_device(device)
         self.compile = compile
 
     def float_array(self, x, name, like=None):

@@ -332,7 +332,7 @@ def add_arguments(p):
 def check_cli(a) -> None:
     """The options' values, checked before anything is written or trained (ParameterError naming
     the first bad one; a CUDA device this torch lacks: BackendUnavailableError)."""
-    from gendr.errors import BackendUnavailableError
+    from gendr_torch.backend import torch_device
     if a.synthetic == bool(a.data):
         raise ParameterError("give exactly one of --data DIR and --synthetic")
     if a.data and not Path(a.data).is_dir():
@@ -354,12 +354,7 @@ def check_cli(a) -> None:
             raise ParameterError(f"--eval-views expects comma-separated view ids, got {a.eval_views!r}") from None
         if not all(0 <= v < NUM_VIEWS for v in views):
             raise ParameterError(f"--eval-views {a.eval_views!r}: view ids are 0 ... {NUM_VIEWS - 1}")
-    try:
-        dev = torch.device(a.device)
-    except RuntimeError:
-        raise ParameterError(f"--device {a.device!r} is not a torch device (e.g. cpu, cuda)") from None
-    if dev.type == "cuda" and not torch.cuda.is_available():
-        raise BackendUnavailableError(f"--device {a.device!r}: this torch has no CUDA device here")
+    torch_device(a.device)  # the torch backend's check (ParameterError / BackendUnavailableError)
 
 
 def main_cli(a) -> int:
