@@ -114,6 +114,14 @@ def _render_batch(verts, camera) -> int:
     return max(Bv, Bc)
 
 
+def _dtype_name(value) -> str:
+    """"int64", "float32", ... of a NumPy, torch or Dr.Jit array, or of what NumPy makes of a list."""
+    dtype = getattr(value, "dtype", None)
+    if dtype is None:
+        dtype = np.asarray(value).dtype
+    return str(dtype).rsplit(".", 1)[-1].lower()  # torch.int64, VarType.Int32 -> int64, int32
+
+
 def _check_batch(name, shape, batched_ndim, B):
     """An input with a leading batch (``len(shape) == batched_ndim``) must have 1 or the render's B."""
     if len(shape) == batched_ndim and shape[0] not in (1, B):
@@ -334,7 +342,8 @@ class Renderer:
         camera : a :class:`~gendr.cameras.Camera`; batched parameters give one camera per batch
             element (B is the broadcast of the vertex and camera batch sizes).
         vertex_colors : [B, V, 3] or [V, 3], or face_colors : [B, F, 3] or [F, 3] (albedo in
-            [0, 1]; default white; float, or integer 0/1 — uint8 is refused as 0..255). Not both.
+            [0, 1]; default white; float, or integers 0 and 1 — uint8, and other integers beyond 0/1, are
+            refused as 0..255). Not both.
         texture : [Ht, Wt, 3|4] or [B, Ht, Wt, 3|4] float32/float64 albedo (row 0 at the top; the
             alpha channel is not used), sampled at the interpolated ``uvs`` with the renderer's
             ``texture_filter`` / ``texture_wrap`` (docs/conventions.md, Textures); instead of
@@ -352,7 +361,7 @@ class Renderer:
         Pixel (row i, column j) is sampled at its centre; row 0 is the top of the image.
 
         Raises (:mod:`gendr.errors`): ShapeError (shapes above; a colour, texture or uv batch other
-        than 1 or B), DTypeError (integer vertices, uint8 colours, float indices), InputValueError (non-finite
+        than 1 or B), DTypeError (integer vertices, uint8 colours or integer colours beyond 0/1, float indices), InputValueError (non-finite
         values, indices out of range), ParameterError (both colour kinds, uvs without a texture, a
         camera that is not a gendr camera, a tensor ``tau`` or a learnable parameter out of its
         domain), DegenerateCameraError (a camera tensor
@@ -386,9 +395,16 @@ class Renderer:
         for name, value, n in (("vertex_colors", vertex_colors, V), ("face_colors", face_colors, faces_a.shape[0])):
             if value is None:
                 continue
-            if str(getattr(value, "dtype", "")).replace("torch.", "") == "uint8":  # an 8-bit image's colours
+            dtype = _dtype_name(value)
+            if dtype == "uint8":  # an 8-bit image's colours
                 raise DTypeError(f"{name} are uint8 (0..255?): give float albedo in [0, 1] (divide by 255), "
                                  f"as for textures")
+            if dtype.startswith(("int", "uint")):  # albedo 0/1 only: 0..255 would render 255 times too bright
+                idx = be.index_array(value, name)
+                lo, hi = be.index_range(idx) if math.prod(idx.shape) else (0, 0)
+                if lo < 0 or hi > 1:
+                    raise DTypeError(f"{name} are {dtype} in [{lo}, {hi}]: integer colours must be 0 or 1; give "
+                                     f"float albedo in [0, 1] (e.g. divide by 255)")
             c = be.float_array(value, name, like=verts)
             if len(c.shape) not in (2, 3) or c.shape[-1] != 3 or c.shape[-2] != n:
                 raise ShapeError(f"{name} must have shape [B, {n}, 3] or [{n}, 3], got {list(c.shape)}")

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+import re
 import subprocess
 import sys
 
@@ -415,3 +416,23 @@ def test_uint8_colours_are_refused_like_uint8_textures(backend, as_torch):
     c = np.full((4, 3), 255, np.uint8)
     with pytest.raises(DTypeError, match="vertex_colors are uint8"):
         renderer(backend=backend).render(V, F, CAM, vertex_colors=torch.as_tensor(c) if as_torch else c)
+
+
+@pytest.mark.parametrize("backend", _backends())
+@pytest.mark.parametrize("colours,words", [
+    (np.full((4, 3), 255, np.int64), "int64 in [255, 255]"),
+    (torch.full((4, 3), 2, dtype=torch.int32), "int32 in [2, 2]"),
+    ([[0, 0, -1]] * 4, "int64 in [-1, 0]"),
+])
+def test_integer_colours_beyond_0_1_are_refused(backend, colours, words):
+    """(int64 255 rendered 255 times too bright, where uint8 was refused)"""
+    with pytest.raises(DTypeError, match=re.escape(f"vertex_colors are {words}: integer colours must be 0 or 1")):
+        renderer(backend=backend).render(V, F, CAM, vertex_colors=colours)
+
+
+@pytest.mark.parametrize("backend", _backends())
+def test_integer_colours_0_1_render_as_floats(backend):
+    r = renderer(backend=backend)
+    as_int = r.to_numpy(r.render(V, F, CAM, vertex_colors=np.array([[1, 0, 1]] * 4, np.int16)))
+    as_float = r.to_numpy(r.render(V, F, CAM, vertex_colors=np.array([[1.0, 0.0, 1.0]] * 4, np.float32)))
+    np.testing.assert_array_equal(as_int, as_float)
