@@ -87,6 +87,23 @@ def test_check_config_names_the_setting(key, value):
     (["sweep", "--experiment", "shape", "--instances", "1", "--scheduler", "tcp://127.0.0.1:8786", "--workers", "2",
       "-o", "{dir}/r.jsonl"], "give one"),
     (["tune", "--target", "icosphere", "--budget", "10", "--top", "0"], "--top must be >= 1"),
+    # a --set that the command sets itself was overwritten without a word (tune kept --target's mesh)
+    (["sweep", "--experiment", "shape", "--instances", "1", "--set", "tau=0.5", "-o", "{dir}/r.jsonl"],
+     "setting tau=0.5 (base, CLI --set) is set by the search axis tau (CLI --taus)"),
+    (["sweep", "--experiment", "pose", "--instances", "1", "--bins", "15-35", "--set", "angle_max=50",
+      "-o", "{dir}/r.jsonl"], "is set by the search axis angle_max (CLI --bins)"),
+    (["sweep", "--experiment", "shape", "--instances", "1", "--set", "tconorm=max", "-o", "{dir}/r.jsonl"],
+     "is set by the instances"),
+    (["sweep", "--experiment", "shape", "--instances", "1", "--set", "protocol=quick", "-o", "{dir}/r.jsonl"],
+     "both set protocol: give --protocol only"),
+    (["sweep", "--experiment", "shape", "--instances", "1", "--backend", "torch", "--set", "backend=drjit",
+      "-o", "{dir}/r.jsonl"], "both set backend"),
+    (["sweep", "--experiment", "shape", "--instances", "1", "--lrs", "0.1", "--set", "lr=0.2", "-o", "{dir}/r.jsonl"],
+     "is set by the search axis lr (CLI --lrs)"),
+    (["tune", "--target", "icosphere", "--budget", "10", "--set", "target=cube", "-o", "{dir}/t.jsonl"],
+     "tune: setting target='cube' (base, CLI --set) is set by tune's target (CLI --target)"),
+    (["tune", "--target", "icosphere", "--budget", "10", "--set", "lr=0.1", "-o", "{dir}/t.jsonl"],
+     "is set by tune's lrs (CLI --lrs)"),
 ])
 def test_results_files_and_outputs_are_checked_before_any_work(tmp_path, capsys, argv, words):
     (tmp_path / "notrow.jsonl").write_text("[1, 2]\n")
@@ -116,6 +133,12 @@ def test_help_shows_each_default_once(capsys):
     (["recon", "--synthetic", "--batch-size", "0"], "--batch-size must be >= 1"),
     (["recon", "--synthetic", "--eval-views", "99"], "view ids are 0 ... 23"),
     (["recon", "--synthetic", "--device", "gpu"], "is not a torch device"),
+    # --classes was ignored with --synthetic (always airplane, chair), and missing class files of
+    # --data surfaced as a traceback
+    (["recon", "--synthetic", "--classes", "02691156"], "--synthetic makes its classes from built-in scenes"),
+    (["recon", "--synthetic", "--classes", "cube,"], "an empty class id"),
+    (["recon", "--synthetic", "--eval-split", "test"], "makes the splits train and val, not ['test']"),
+    (["recon", "--data", "{dir}"], "lacks 02691156_train_images.npz"),
 ])
 def test_recon_options_are_checked_before_anything_is_written(tmp_path, capsys, argv, words):
     """(each failed after generating data or training, leaving the -o folder behind)"""
@@ -124,3 +147,33 @@ def test_recon_options_are_checked_before_anything_is_written(tmp_path, capsys, 
     err = capsys.readouterr().err
     assert code == 2 and words in err and "Traceback" not in err, err
     assert not out.exists()
+
+
+def test_set_gives_the_axis_when_its_option_is_not_given(tmp_path):
+    """Without --lrs (pose: --taus) the search runs the preset's value, which --set may change."""
+    from gendr_experiments.sweep import load_rows
+    out = tmp_path / "r.jsonl"
+    assert gendr_main(["experiment", "sweep", "--experiment", "pose", "--instances", "271", "--no-refine", "-q",
+                       "--workers", "0", "--set", "image_size=8", "--set", "steps=1", "--set", "pairs=1",
+                       "--set", "lr=0.2", "--set", "tau_start=0.05", "-o", str(out)]) == 0
+    [row] = load_rows(out)
+    assert (row["lr"], row["tau_start"]) == (0.2, 0.05)
+
+
+def test_an_unreachable_scheduler_fails_fast_naming_it(tmp_path, capsys):
+    """(a refused connection was retried for distributed's 30 s connect timeout, then shown as a
+    bare "gendr: error: Timed out")"""
+    import socket
+    import time
+    pytest.importorskip("distributed")
+    with socket.socket() as s:  # a port that nothing listens on: bound, never listened
+        s.bind(("127.0.0.1", 0))
+        address = f"tcp://127.0.0.1:{s.getsockname()[1]}"
+        t0 = time.monotonic()
+        code = gendr_main(["experiment", "sweep", "--experiment", "shape", "--instances", "1", "--taus", "0.1",
+                           "--no-refine", "-q", *TINY, "--scheduler", address, "-o", str(tmp_path / "r.jsonl")])
+        seconds = time.monotonic() - t0
+    err = capsys.readouterr().err
+    assert code == 2 and f"gendr experiment: error: no Dask scheduler answers at {address}" in err, err
+    assert seconds < 15, seconds  # the probe's timeout is 5 s; refused answers at once
+    assert not (tmp_path / "r.jsonl").exists()

@@ -112,11 +112,24 @@ def test_tune_rejects_bad_settings(tmp_path, kwargs, error, words):
 
 
 def test_tune_rejects_missing_targets(tmp_path):
+    settings = dict(steps=3, subdivisions=1)  # (TINY's target, image size and views: the target's)
     with pytest.raises(InputValueError, match="nowhere.obj"):
-        tune("nowhere.obj", budget=5, store=tmp_path / "t.jsonl", base=TINY, workers=0)
+        tune("nowhere.obj", budget=5, store=tmp_path / "t.jsonl", base=settings, workers=0)
     np.savez(tmp_path / "flat.npz", images=np.zeros((2, 4)), azimuth=0.0, elevation=0.0, distance=3.0, fov_y=30.0)
     with pytest.raises(ShapeError, match="flat.npz"):
-        tune(f"images:{tmp_path / 'flat.npz'}", budget=5, store=tmp_path / "t.jsonl", base=TINY, workers=0)
+        tune(f"images:{tmp_path / 'flat.npz'}", budget=5, store=tmp_path / "t.jsonl", base=settings, workers=0)
+
+
+def test_tune_refuses_base_settings_it_sets_itself(tmp_path):
+    """(a base target or image size other than the images file's was overwritten without a word)"""
+    with pytest.raises(ParameterError, match="setting target='tetrahedron' .* is set by tune's target"):
+        tune("cube", budget=5, store=tmp_path / "t.jsonl", base=TINY, workers=0)
+    with pytest.raises(ParameterError, match="setting tau=0.1 .* is set by tune's taus"):
+        tune("tetrahedron", budget=5, store=tmp_path / "t.jsonl", base=dict(TINY, tau=0.1), workers=0)
+    target = _mesh_target_as_images(tmp_path / "t.npz", shape_config(TINY))
+    with pytest.raises(ParameterError, match="setting image_size=12 .* is set by the images file"):
+        tune(target, budget=5, store=tmp_path / "t.jsonl", base=dict(image_size=12), workers=0)
+    assert not (tmp_path / "t.jsonl").exists()
 
 
 def test_cli_tune_prints_the_ranking(tmp_path, capsys):

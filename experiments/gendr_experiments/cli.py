@@ -82,6 +82,18 @@ def _kv(items, option="--set"):
     return out
 
 
+def _base_settings(a, **own):
+    """The --set settings plus those of the command's own options (``own``: name -> value, None
+    where not given); a setting given both ways is an error, not a silent choice of one."""
+    base = _kv(a.set)
+    for k, v in own.items():
+        if v is not None:
+            if k in base:
+                raise UsageError(f"--set {k}={base[k]!r} and --{k} {v!r} both set {k}: give --{k} only")
+            base[k] = v
+    return base
+
+
 def _instance_options(p):
     g = p.add_argument_group("renderer instance (default: logistic + probabilistic)")
     g.add_argument("--instance", type=int, default=None, metavar="K", help="instance K of `gendr list grid`")
@@ -303,9 +315,7 @@ def cmd_sweep(a) -> int:
         return 2
     _apply_data(a)
     from .sweep import OtherCodeError, full_config
-    base = {"protocol": a.protocol, **_kv(a.set)}
-    if a.backend:
-        base["backend"] = a.backend
+    base = _base_settings(a, protocol=a.protocol, backend=a.backend)
     preset = full_config(a.experiment, base)
     extra = {}
     if a.elevations:
@@ -315,6 +325,10 @@ def cmd_sweep(a) -> int:
     tau_key = EXPERIMENTS[a.experiment]
     taus = _floats(a.taus, "--taus") if a.taus else ([1e-1, 1e-2, 1e-3] if a.experiment == "shape" else [preset[tau_key]])
     lrs = _floats(a.lrs, "--lrs") if a.lrs else [preset["lr"]]
+    # without --lrs (pose: --taus) the axis is the preset's value, which --set may give: taken from there
+    for key, derived in (("lr", not a.lrs), (tau_key, not a.taus and a.experiment != "shape")):
+        if derived:
+            base.pop(key, None)
     for option, values in (("--taus", taus), ("--lrs", lrs)):
         if not all(v > 0 and v != float("inf") for v in values):
             raise UsageError(f"{option} must be numbers > 0, got {values}")
@@ -517,9 +531,7 @@ def cmd_tune(a) -> int:
     except ValueError as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
-    base = _kv(a.set)
-    if a.backend:
-        base["backend"] = a.backend
+    base = _base_settings(a, backend=a.backend)
     try:
         res = tune(a.target, budget=a.budget, store=a.output, protocol=a.protocol, instances=instances,
                    taus=_floats(a.taus, "--taus"), lrs=_floats(a.lrs, "--lrs") if a.lrs else None,

@@ -303,13 +303,24 @@ def make_synthetic_dataset(directory, *, classes=("airplane", "chair"), objects=
 # command line
 # ------------------------------------------------------------------------------------------------
 
+#: default classes of --data (ShapeNet ids: airplane, chair) and of --synthetic (built-in scenes)
+DATA_CLASSES, SYNTHETIC_CLASSES = "02691156,03001627", "airplane,chair"
+
+
+def classes_of(a) -> list[str]:
+    """The class ids the command uses: --classes, else the default of --data or --synthetic."""
+    return (a.classes or (SYNTHETIC_CLASSES if a.synthetic else DATA_CLASSES)).split(",")
+
+
 def add_arguments(p):
     p.description = ("Train the single-view reconstruction model on the N3MR/SoftRas data (DIR/{class}_{split}_"
                      "images.npz, _voxels.npz) with any gendr instance; report class-wise 3D IoU.")
     p.add_argument("--data", default=None, metavar="DIR", help="data directory (N3MR/SoftRas layout)")
     p.add_argument("--synthetic", action="store_true", help="generate a small synthetic data set from built-in "
                                                             "shapes into OUTDIR/data and use it")
-    p.add_argument("--classes", default="02691156,03001627", help="class ids (default: airplane, chair)")
+    p.add_argument("--classes", default=None,
+                   help=f"comma-separated class ids (default: with --data {DATA_CLASSES}, ShapeNet's airplane and "
+                        f"chair; with --synthetic {SYNTHETIC_CLASSES}, built-in scene names)")
     p.add_argument("--train-split", default="train")
     p.add_argument("--eval-split", default="val")
     p.add_argument("-o", "--output", default="recon_out", help="output directory (model, history, metrics)")
@@ -337,6 +348,25 @@ def check_cli(a) -> None:
         raise ParameterError("give exactly one of --data DIR and --synthetic")
     if a.data and not Path(a.data).is_dir():
         raise ParameterError(f"--data {a.data!r} is not a directory")
+    classes = classes_of(a)
+    if not all(classes):
+        raise ParameterError(f"--classes {a.classes!r}: an empty class id")
+    if a.synthetic:
+        from gendr.scenes import SCENES
+        bad = [c for c in classes if c not in SCENES]
+        if bad:
+            raise ParameterError(f"--classes {bad}: --synthetic makes its classes from built-in scenes "
+                                 f"({', '.join(sorted(SCENES))})")
+        if {a.train_split, a.eval_split} - {"train", "val"}:
+            raise ParameterError(f"--synthetic makes the splits train and val, not "
+                                 f"{sorted({a.train_split, a.eval_split} - {'train', 'val'})}")
+    else:
+        missing = [f"{c}_{s}_{kind}.npz" for c in classes for s in dict.fromkeys((a.train_split, a.eval_split))
+                   for kind in ("images", "voxels") if not (Path(a.data) / f"{c}_{s}_{kind}.npz").is_file()]
+        if missing:
+            raise ParameterError(f"--data {a.data!r} lacks {', '.join(missing[:4])}"
+                                 f"{f' (and {len(missing) - 4} more)' if len(missing) > 4 else ''} "
+                                 f"(N3MR/SoftRas layout: CLASS_SPLIT_images.npz, CLASS_SPLIT_voxels.npz)")
     if Path(a.output).exists() and not Path(a.output).is_dir():
         raise ParameterError(f"-o {a.output!r} is a file; name the output directory")
     for option, value in (("--steps", a.steps), ("--batch-size", a.batch_size)):
@@ -363,9 +393,9 @@ def main_cli(a) -> int:
     out.mkdir(parents=True, exist_ok=True)
     if a.synthetic:
         data_dir = out / "data"
-        classes = make_synthetic_dataset(data_dir, image_size=64)
+        classes = make_synthetic_dataset(data_dir, classes=classes_of(a), image_size=64)
     else:
-        data_dir, classes = Path(a.data), a.classes.split(",")
+        data_dir, classes = Path(a.data), classes_of(a)
     cfg = dict(distribution=a.distribution, tconorm=a.tconorm, instance=a.instance, tau=a.tau, lr=a.lr,
                batch_size=a.batch_size, steps=a.steps, subdivisions=a.subdivisions, render_size=a.render_size,
                device=a.device, backend=a.backend, seed=a.seed)

@@ -32,7 +32,7 @@ from gendr.errors import GendrError, ParameterError
 
 from .common import config_hash, provenance, source_hash
 
-__all__ = ["EXPERIMENTS", "OtherCodeError", "full_config", "expand", "run_config", "ResultStore", "execute", "load_rows",
+__all__ = ["EXPERIMENTS", "OtherCodeError", "SchedulerUnreachableError", "full_config", "expand", "run_config", "ResultStore", "execute", "load_rows",
            "aggregate", "best_setting_search", "fine_grid", "summarize_best", "write_csv", "verify_rows",
            "DRIFT_TOLERANCE"]
 
@@ -144,6 +144,38 @@ def run_config(cfg: dict) -> dict:
 
 class OtherCodeError(GendrError, RuntimeError):
     """A results file holds finished rows of the requested configs that other code made."""
+
+
+class SchedulerUnreachableError(GendrError, ConnectionError):
+    """Nothing answers at the Dask scheduler address (refused, unknown host, unreachable)."""
+
+
+def _reach_scheduler(address: str, timeout: float = 5.0):
+    """Raise :class:`SchedulerUnreachableError` naming ``address`` when no TCP listener answers there
+    within ``timeout`` s: ``distributed`` retries a refused connection for its whole connect
+    timeout (30 s) before saying so. Only tcp:// and tls:// addresses are probed."""
+    import socket
+    from urllib.parse import urlsplit
+    u = urlsplit(address)
+    if u.scheme not in ("tcp", "tls") or not u.hostname:
+        return
+    try:
+        socket.create_connection((u.hostname, u.port or 8786), timeout=timeout).close()
+    except OSError as exc:
+        why = exc.strerror or type(exc).__name__
+        raise SchedulerUnreachableError(f"no Dask scheduler answers at {address} ({why}); start one there with "
+                                        f"`dask scheduler` and its workers with `dask worker {address}`") from None
+
+
+def check_base(base, decided: dict, who: str, fixed=None):
+    """A :class:`~gendr.errors.ParameterError` for a setting of ``base`` that ``who`` sets itself
+    (``decided``: its name -> what sets it): it would be overwritten without a word. ``fixed``: name
+    -> the one value ``who`` sets (a base setting equal to it is no conflict)."""
+    fixed = fixed or {}
+    for k in base or {}:
+        if k in decided and not (k in fixed and base[k] == fixed[k]):
+            raise ParameterError(f"{who}: setting {k}={base[k]!r} (base, CLI --set) is set by {decided[k]}; "
+                                 f"give it there")
 
 
 class ResultStore:
@@ -266,6 +298,8 @@ def execute(configs, store: ResultStore | str, *, workers: int | None = None, sc
     if todo and not late():
         if scheduler is not None:
             from distributed import Client, as_completed as dask_completed
+            if not isinstance(scheduler, Client):
+                _reach_scheduler(scheduler)
             client = scheduler if isinstance(scheduler, Client) else Client(scheduler)
             try:
                 _check_cluster_code(client, {c.get("backend", "torch") for _, c in todo})
@@ -355,6 +389,13 @@ def fine_grid(best: float, steps=(-0.5, -0.25, 0.25, 0.5)) -> list[float]:
     return [float(f"{best * 10 ** s:.6g}") for s in steps]
 
 
+#: config keys that name the renderer instance (set by a search's instance list, never by its base)
+INSTANCE_KEYS = ("instance", "distribution", "tconorm")
+#: the CLI options that set a search axis (for error messages)
+AXIS_OPTIONS = {"tau": "--taus", "tau_start": "--taus", "lr": "--lrs", "seed": "--seeds", "elevation": "--elevations",
+                "angle_min": "--bins", "angle_max": "--bins"}
+
+
 def best_setting_search(experiment: str, instances, *, taus, lrs, seeds=(0,), base=None, extra_axes=None,
                         refine: bool = True, fine_steps=(-0.5, -0.25, 0.25, 0.5), store, **execute_kw) -> list[dict]:
     """The paper's search: for every instance run the coarse τ grid × learning rates × seeds (× extra
@@ -362,6 +403,11 @@ def best_setting_search(experiment: str, instances, *, taus, lrs, seeds=(0,), ba
     rate). Returns :func:`summarize_best` of all rows."""
     tau_key = EXPERIMENTS[experiment]
     axes = {tau_key: list(taus), "lr": list(lrs), "seed": list(seeds), **(extra_axes or {})}
+    decided = dict.fromkeys(INSTANCE_KEYS, "the instances (CLI --instances, --dists, --tconorms)")
+    for k in axes:
+        for name in (k if isinstance(k, tuple) else (k,)):
+            decided[name] = f"the search axis {name} (CLI {AXIS_OPTIONS.get(name, '--' + name)})"
+    check_base(base, decided, f"the {experiment} search")
     configs = expand(experiment, base, instances=instances, axes=axes)
     rows = execute(configs, store, **execute_kw)
     if refine:

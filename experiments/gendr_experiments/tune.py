@@ -185,7 +185,8 @@ def tune(target: str, *, budget: float, store="tune.jsonl", protocol: str = "qui
     :class:`~gendr.errors.InputValueError` / :class:`~gendr.errors.ShapeError` (target) before running.
     """
     from .cost import run_features
-    from .sweep import ResultStore, execute, expand, fine_grid, full_config, summarize_best
+    from .sweep import (INSTANCE_KEYS, ResultStore, check_base, execute, expand, fine_grid, full_config,
+                        summarize_best)
     t_start = time.monotonic()
     stream = stream if stream is not None else sys.stderr
     if isinstance(budget, bool) or not isinstance(budget, (int, float)) or not (math.isfinite(budget) and budget > 0):
@@ -194,10 +195,13 @@ def tune(target: str, *, budget: float, store="tune.jsonl", protocol: str = "qui
     if not taus or any(not (math.isfinite(t) and t > 0) for t in taus):
         raise ParameterError(f"tune taus={taus!r} must be a non-empty list of widths > 0")
     from .targets import is_images_target
-    base = dict(base or {}, protocol=protocol, target=target)
+    decided = {"target": "tune's target (CLI --target)", "protocol": "tune's protocol (CLI --protocol)",
+               "tau": "tune's taus (CLI --taus)", "lr": "tune's lrs (CLI --lrs)", "seed": "tune's seeds (CLI --seeds)",
+               **dict.fromkeys(INSTANCE_KEYS, "tune's instances (CLI --instances, --dists, --tconorms)")}
     if is_images_target(target):
-        base.pop("image_size", None)
-        base.pop("views", None)
+        decided.update(dict.fromkeys(("image_size", "views"), f"the images file of {target!r}"))
+    check_base(base, decided, "tune", fixed={"target": target, "protocol": protocol})
+    base = dict(base or {}, protocol=protocol, target=target)
     views, (H, W) = _check_target(target, base)
     if is_images_target(target):  # recorded for the reader; the file decides (targets module)
         base.update(views=int(views), image_size=H if H == W else [H, W])
