@@ -2,12 +2,11 @@
 import json
 
 import numpy as np
-import pytest
 
 import gendr
 from gendr.cli import main as gendr_main
-from gendr_experiments.figures import (grid_labels, make_figures, plot_heatmap, score_matrix, silhouette_frame,
-                                       top_fraction, write_gif)
+from gendr_experiments.figures import (grid_labels, make_figures, score_matrix, silhouette_frame, top_fraction,
+                                       write_gif)
 
 
 def _fake_rows(n=60, seed=0):

@@ -9,7 +9,7 @@ import torch
 
 import gendr
 from gendr.errors import InputValueError, ParameterError
-from gendr.scenes import Mesh, get_scene
+from gendr.scenes import Mesh
 from gendr_experiments.common import PAPER_DATA_ENV, _merged, resolve_data_path
 from gendr_experiments.pose import (POSE_PRESETS, LookAtPoseProblem, lookat_pairs, lookat_rotation, pose_config,
                                     run_pose)

@@ -34,7 +34,7 @@ import pytest
 import torch
 
 import gendr
-from gendr.tconorms import ARCHIMEDEAN, MAX
+from gendr.tconorms import MAX
 from gendr_torch.ops import torch_ops
 from naive_reference import pixel_face_geometry
 

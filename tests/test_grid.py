@@ -1,7 +1,4 @@
 """The paper's grid: 1,242 instances, each constructs a renderer that renders (finite, in [0, 1])."""
-import math
-
-import numpy as np
 import pytest
 import torch
 

@@ -2,7 +2,6 @@
 `python -m gendr_validation.goldens --regenerate` (it prints the diff first)."""
 import os
 
-import numpy as np
 import pytest
 
 goldens = pytest.importorskip("gendr_validation.goldens")

@@ -174,12 +174,12 @@ def cmd_shape(a) -> int:
     _apply_data(a)
     cfg = shape_config(_instance_config(a), **_given(a, SHAPE_OPTIONS))
     set_threads(cfg["backend"], a.threads)
-    frames, cb = [], None
-    if a.gif:
-        def cb(step, v, sil, loss):
-            if step % max(1, a.gif_every) == 0:
-                frames.append(sil.numpy())
-    res = run_shape(cfg, callback=cb)
+    frames = []
+
+    def keep_frame(step, v, sil, loss):
+        if step % max(1, a.gif_every) == 0:
+            frames.append(sil.numpy())
+    res = run_shape(cfg, callback=keep_frame if a.gif else None)
     if a.gif:
         tgt = shape_target_views(cfg)[1].numpy()
         write_gif([silhouette_frame(f, tgt, a.gif_views) for f in frames], a.gif)

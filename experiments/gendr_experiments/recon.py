@@ -226,7 +226,6 @@ def train(data: ShapeNetViews, config=None, *, log=None, eval_data=None, **overr
         _, va, vb, ia, ib = data.random_batch(rng, int(cfg["batch_size"]))
         ia, ib = ia.to(dev), ib.to(dev)
         verts = model(ia)
-        B = verts.shape[0]
         views = torch.cat([torch.as_tensor(va), torch.as_tensor(vb)])
         sil = renderer.render(torch.cat([verts, verts]), model.faces, view_camera(views, dev))[..., 3]
         tgt = torch.cat([ia[:, 3], ib[:, 3]])

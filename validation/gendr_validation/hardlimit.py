@@ -19,9 +19,8 @@ pyrender 1/256 px (Mesa's rasterizer snaps vertices to a 1/256-pixel fixed-point
 """
 from __future__ import annotations
 
-import math
 import time
-from dataclasses import dataclass, field, asdict
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -29,7 +28,7 @@ import gendr
 from gendr.grid import DISTRIBUTION_SETTINGS
 
 from .cameras import camera_geometry, edge_distance
-from .references import get_reference, ReferenceUnavailableError, DEFAULT_REFERENCES
+from .references import get_reference, ReferenceUnavailableError
 
 TINY_TAU = 1e-12          # screen units (1 unit = H/2 px): δ/τ ~ 1e7 at 48x64
 TINY_TAU_SQUARED = 1e-24  # squared units: δ²/τ ~ 1e14

@@ -23,6 +23,7 @@ import gendr
 from gendr import scenes as gscenes
 
 from . import gradcheck, hardlimit, surfaces
+from .references import DEFAULT_REFERENCES
 
 QUICK_SCENES = ("icosphere", "cube", "torus", "thin_shape", "teapot_like", "open_mesh", "degenerate_mesh")
 QUICK_SIZE = (48, 64)
@@ -159,7 +160,7 @@ def _run(backends, instances, scenes, quick, outdir, references, limit_instances
     notes = []
     os.makedirs(outdir, exist_ok=True)
     bnames = hardlimit.usable_backends(backends, notes)
-    refs = hardlimit.open_references(hardlimit.DEFAULT_REFERENCES if references is None else references, notes)
+    refs = hardlimit.open_references(DEFAULT_REFERENCES if references is None else references, notes)
     H, W = size or (QUICK_SIZE if quick else FULL_SIZE)
     scene_names = list(scenes) if scenes else list(QUICK_SCENES if quick else gscenes.SCENES)
     meshes = {}
