@@ -33,6 +33,12 @@ from test_renderer_reference import (FACES, FACES_SOFTMAX, ZERO_AREA, H, W, face
 F64_TOL = 1e-9
 F32_FWD_VS_F64, F32_GRAD_VS_F64 = 2e-5, 1e-3
 F32_FWD_VS_TORCH32, F32_GRAD_VS_TORCH32 = 1e-5, 1e-4
+# float32's own rounding floor on this scene, for checks of one backend's float32 error against the
+# other's: forward ~3e-7, gradients up to 3.6e-6 of the largest (sums of ~10^3 pixel terms in
+# another order), measured when the near-clipped face's float32 error fell to that floor (it was
+# ~3e-4 of the gradients, shared by both backends, before its edges were measured from their
+# nearer corners: docs/conventions.md, near-plane clipping)
+F32_FLOOR_FWD, F32_FLOOR_GRAD = 1e-6, 1e-5
 
 
 def _tau0(dist):
@@ -196,9 +202,10 @@ def _matches_torch_sum_of_generators(dist, tcn, tau, saturates):
         assert e <= F64_TOL, f"gradient w.r.t. {k} differs by {e:.3g}"
     fwd, bwd, scale = compare(run("drjit", dist, tcn, tau=tau, dtype=torch.float32), ref)
     fwd_t, bwd_t, _ = compare(run("torch", dist, tcn, tau=tau, dtype=torch.float32), ref)
-    assert fwd <= 1.1 * fwd_t, f"float32 forward vs float64 reference: {fwd:.3g} (torch float32: {fwd_t:.3g})"
+    assert fwd <= 1.1 * fwd_t + F32_FLOOR_FWD, f"float32 forward vs float64 reference: {fwd:.3g} (torch float32: {fwd_t:.3g})"
     for k, e in bwd.items():
-        assert e <= 1.1 * bwd_t[k] + 1e-6 * scale[k], f"float32 gradient w.r.t. {k}: {e:.3g} (torch: {bwd_t[k]:.3g})"
+        assert e <= 1.1 * bwd_t[k] + F32_FLOOR_GRAD * scale[k], \
+            f"float32 gradient w.r.t. {k}: {e:.3g} (torch: {bwd_t[k]:.3g})"
 
 
 def test_float32_rgb_softmax():

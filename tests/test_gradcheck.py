@@ -44,7 +44,9 @@ H, W = 6, 7
 TAU, TAU_SQUARED = 0.4, 0.15
 LIGHT = (-0.6, 0.5, -1.0)  # lights every face of the scene (n·(−l) well above 0)
 
-# two overlapping faces at different depths and one crossing the near plane (clipped to a quad)
+# two overlapping faces at different depths and one crossing the near plane (clipped to a quad,
+# with corners beyond FAR_CORNER: one of its edges is measured from its far end, which checks the
+# backward's exchange of that edge's corner parts; test_near_plane.py)
 VERTS = [[-0.85, -0.49, 0.0], [0.49, -0.36, 0.14], [-0.04, 0.72, 0.0],
          [-0.06, -0.22, 0.4], [0.79, 0.06, 0.37], [0.23, 0.66, 0.44],
          [-0.95, 0.33, 0.33], [-0.62, 0.7, 0.06], [-0.67, 0.42, 3.43]]

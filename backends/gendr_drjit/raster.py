@@ -182,7 +182,9 @@ def prepare_faces(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, color
             cross = inside[c] ^ inside[(c + 1) % 3]
             dz = bq[2] - a[2]
             t = dr.select(cross, (-near - a[2]) / dr.select(cross, dz, 1.0), 0.0)
-            cands += [a, tuple(a[i] + t * (bq[i] - a[i]) for i in range(3))]
+            # z on the plane exactly (interpolated it is off by ~ulp(|z|): a tiny near plane would
+            # project the corner through z ~ 0)
+            cands += [a, (a[0] + t * (bq[0] - a[0]), a[1] + t * (bq[1] - a[1]), dr.select(cross, -near, a[2]))]
             flags += [inside[c], cross]
         Int32 = T.Int32
         pos, cnt = [], dr.zeros(Int32, m)
@@ -825,12 +827,17 @@ def _packed_width(K):
 
 
 def _face_edges(fc, T, f):
-    """Per (lane, face ``f``): the face's edges, (Px, Py, Ex, Ey, nx, ny, c, il) each. Edge k runs
+    """Per (lane, face ``f``): the face's edges, (Px, Py, Ex, Ey, nx, ny, c, il, kc) each. Edge k runs
     from corner P_k to corner k + 1 (E); its unit normal (nx, ny) points into the face (orient);
-    il = 1/|E|²; c offsets degenerate edges (see distance_parts)."""
+    il = 1/|E|²; c offsets degenerate edges (see distance_parts). In near-clipped renders (K = 4)
+    an edge from a far corner k to a nearer corner k + 1 is anchored at corner k + 1 instead, with
+    E reversed (the torch backend's ``anchor_swapped``: the distance's rounding error is
+    ~ulp(|anchor|)); kc is then the edge's code k + 4 (else k; None in unclipped renders), which
+    :func:`_strip_pixel` turns back into (k, t from corner k)."""
     K = fc.K
     v = dr.gather(T.ArrayX, fc.packed, f, shape=(_packed_width(K), dr.width(f)))
     Xs, Ys, orient = [v[k] for k in range(K)], [v[K + k] for k in range(K)], v[2 * K]
+    far = [dr.maximum(dr.abs(Xs[k]), dr.abs(Ys[k])) for k in range(K)] if K == 4 else None
     edges = []
     for k in range(K):
         Px, Py = Xs[k], Ys[k]
@@ -840,18 +847,29 @@ def _face_edges(fc, T, f):
         len2s = dr.select(nonzero, len2, 1.0)
         il = dr.select(nonzero, 1.0 / len2s, 0.0)
         inv_len = dr.select(nonzero, dr.rsqrt(len2s), 0.0) * orient
-        nx, ny = -Ey * inv_len, Ex * inv_len
+        nx, ny = -Ey * inv_len, Ex * inv_len  # (the line's normal: the same from either end)
         c = dr.select(orient == 0.0, -1.0, dr.select(nonzero, 0.0, T.big))
-        edges.append((Px, Py, Ex, Ey, nx, ny, c, il))
+        kc = None
+        if far is not None:
+            swap = (far[k] > FAR_CORNER) & (far[k] > far[(k + 1) % K])
+            Px, Py = dr.select(swap, Xs[(k + 1) % K], Px), dr.select(swap, Ys[(k + 1) % K], Py)
+            Ex, Ey = dr.select(swap, -Ex, Ex), dr.select(swap, -Ey, Ey)
+            kc = dr.select(swap, T.UInt32(k + 4), T.UInt32(k))
+        edges.append((Px, Py, Ex, Ey, nx, ny, c, il, kc))
     return edges
+
+
+#: near-clipped renders: edges from a corner farther than this (screen units, max norm) to a nearer
+#: one are measured from the nearer corner (the torch backend's FAR_CORNER, same rule)
+FAR_CORNER = 4.0
 
 
 def _column_edges(edges, px):
     """The edges of :func:`_face_edges` relative to the pixel column ``px`` (what _strip_pixel reads)."""
     out = []
-    for Px, Py, Ex, Ey, nx, ny, c, il in edges:
+    for Px, Py, Ex, Ey, nx, ny, c, il, kc in edges:
         dx = px - Px
-        out.append((Py, Ex, Ey, nx, ny, c, il, dx, dx * nx, dx * Ex))
+        out.append((Py, Ex, Ey, nx, ny, c, il, dx, dx * nx, dx * Ex, kc))
     return out
 
 
@@ -879,7 +897,8 @@ def _strip_pixel(T, edges, py, track):
     to the nearest edge line inside, to the nearest boundary point outside), and with ``track`` the
     nearest edge's (k, t, ux, uy): the signed distance moves by (1 − t)·u·δP_k + t·u·δP_{k+1}."""
     d2 = emin = None
-    for k, (Py, Ex, Ey, nx, ny, c, il, dx, dxnx, dxEx) in enumerate(edges):
+    for k, (Py, Ex, Ey, nx, ny, c, il, dx, dxnx, dxEx, kc) in enumerate(edges):
+        kc = k if kc is None else kc  # (the edge's code: k, or k + 4 where anchored at corner k + 1)
         # evaluated in the torch backend's order: the same rounding decides ties between edges
         # (zero-area faces), whose corners get different gradients
         dy = py - Py
@@ -890,15 +909,15 @@ def _strip_pixel(T, edges, py, track):
         if d2 is None:
             d2, emin = dk, ek
             if track:
-                kd = ke = dr.zeros(T.UInt32, 1)
+                kd = ke = T.UInt32(kc)
                 td = te = t
                 qxb, qyb, nxb, nyb = qx, qy, nx, ny
         else:
             if track:
                 bd, be = dk < d2, ek < emin
-                kd, td = dr.select(bd, k, kd), dr.select(bd, t, td)
+                kd, td = dr.select(bd, kc, kd), dr.select(bd, t, td)
                 qxb, qyb = dr.select(bd, qx, qxb), dr.select(bd, qy, qyb)
-                ke, te = dr.select(be, k, ke), dr.select(be, t, te)
+                ke, te = dr.select(be, kc, ke), dr.select(be, t, te)
                 nxb, nyb = dr.select(be, nx, nxb), dr.select(be, ny, nyb)
             d2, emin = _min(d2, dk), _min(emin, ek)
     inside = emin >= 0.0
@@ -906,8 +925,11 @@ def _strip_pixel(T, edges, py, track):
     d = dr.select(inside, emin, -r)
     if not track:
         return d, None
-    return d, (dr.select(inside, ke, kd), dr.select(inside, te, td),
-               dr.select(inside, -nxb, qxb / r), dr.select(inside, -nyb, qyb / r))
+    kk, tt = dr.select(inside, ke, kd), dr.select(inside, te, td)
+    if edges[0][-1] is not None:  # t was measured from the anchor: from corner k it is 1 − t
+        swapped = kk >= 4
+        kk, tt = dr.select(swapped, kk - 4, kk), dr.select(swapped, 1.0 - tt, tt)
+    return d, (kk, tt, dr.select(inside, -nxb, qxb / r), dr.select(inside, -nyb, qyb / r))
 
 
 #: the odds product's cap: a pixel that reaches it (Σ g ≥ log1p(2^100) = 69.3, where 1 − e^(−S) is 1 in

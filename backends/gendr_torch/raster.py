@@ -133,6 +133,9 @@ def prepare_faces(settings, camera, verts, faces, colors, per_face, texture=None
         cross = inside ^ in_n
         t = (-near - tri[..., 2]) / torch.where(cross, dz, torch.ones_like(dz))
         inter = tri + torch.where(cross, t, torch.zeros_like(t))[..., None] * (nxt - tri)
+        # on the plane exactly: interpolated, z is off by ~ulp(|z|), which a tiny near plane (1e-7
+        # in float32) cannot absorb: the corner would project through z ~ 0 (or from behind)
+        inter = torch.cat([inter[..., :2], torch.where(cross, -near, inter[..., 2])[..., None]], -1)
         cand = torch.stack([tri, inter], 3).reshape(B, F, 6, 3)
         cvalid = torch.stack([inside, cross], 3).reshape(B, F, 6)
         count = cvalid.sum(-1)
@@ -161,10 +164,34 @@ def prepare_faces(settings, camera, verts, faces, colors, per_face, texture=None
                  UV_ROW + (6 if texture is not None else 0))
 
 
+#: near-plane clipped renders (K = 4): an edge from a corner farther than this from the image centre
+#: (screen units, max norm) to a nearer corner is measured from the nearer one (see anchor_swapped)
+FAR_CORNER = 4.0
+
+
+def anchor_swapped(X, Y):
+    """[N, K] bool: edge k (corner k -> k + 1) is measured from corner k + 1 (its "anchor").
+
+    A pixel's distance to edge k is computed as (p − P)·n, from the anchor P; its rounding error is
+    ~ulp(|P|). Corners of faces clipped by a small near plane lie at ~x/near screen units (1e5 at
+    near = 1e-5), which would cost float32 ~0.01 screen units: so in near-clipped renders an edge
+    whose corner k is far (> FAR_CORNER) and farther than corner k + 1 is measured from corner
+    k + 1 instead. Other edges (all of an unclipped render) keep corner k: the same arithmetic as
+    without the rule. The Dr.Jit backend decides alike (raster._face_edges)."""
+    if X.shape[1] != 4:
+        return None
+    m = torch.maximum(X.abs(), Y.abs()).detach()
+    m_next = m.roll(-1, 1)
+    return (m > FAR_CORNER) & (m > m_next)
+
+
 def edge_table(X, Y):
     """Per-edge data of polygons with corners (X, Y) [N, K]: [8K, N], rows (edge k, field) with
     fields Px, Py, Ex, Ey, 1/|E|², nx, ny, c (inward unit normal n, offset c, see signed_distance).
-    Field-major, so that a block's gather (index_select along dim 1) gives contiguous [1, R] rows."""
+    Field-major, so that a block's gather (index_select along dim 1) gives contiguous [1, R] rows.
+    (Px, Py) is the edge's anchor and (Ex, Ey) points from it to the other end: corner k and
+    P_{k+1} − P_k, or where :func:`anchor_swapped`, corner k + 1 and P_k − P_{k+1} (then the
+    backward's corner parts of the edge are exchanged, see swap_corner_parts)."""
     N, K = X.shape
     Ex, Ey = X.roll(-1, 1) - X, Y.roll(-1, 1) - Y
     len2 = Ex * Ex + Ey * Ey
@@ -179,7 +206,21 @@ def edge_table(X, Y):
     big = torch.finfo(X.dtype).max / 4
     c = torch.where(nonzero, torch.zeros_like(len2), torch.full_like(len2, big))
     c = torch.where((orient == 0)[:, None], torch.full_like(c, -1.0), c)
-    return torch.stack([t.t() for t in (X, Y, Ex, Ey, inv_len2, nx, ny, c)], 1).reshape(8 * K, N)
+    Px, Py = X, Y
+    swap = anchor_swapped(X, Y)
+    if swap is not None:  # (n is the line's: the same from either end)
+        Px, Py = torch.where(swap, X.roll(-1, 1), X), torch.where(swap, Y.roll(-1, 1), Y)
+        Ex, Ey = torch.where(swap, -Ex, Ex), torch.where(swap, -Ey, Ey)
+    return torch.stack([t.t() for t in (Px, Py, Ex, Ey, inv_len2, nx, ny, c)], 1).reshape(8 * K, N)
+
+
+def swap_corner_parts(gP, X, Y):
+    """The backward's per (face, edge) parts [N, K, 4] (anchor x, y, other end x, y: see
+    signed_distance's t) with each swapped edge's two corners exchanged back to (corner k, k + 1)."""
+    swap = anchor_swapped(X, Y)
+    if swap is None:
+        return gP
+    return torch.where(swap[..., None], gP[..., [2, 3, 0, 1]], gP)
 
 
 def _shading_data(settings, camera, P, H, W, verts, faces, tri, colors, per_face, B, texture=None, normals_out=False):
@@ -714,7 +755,7 @@ class SoftAlpha(torch.autograd.Function):
                 gd = local_grad(blk, d, w, lambda x: _coverage_max(dist, x, eps, x_cut))
                 if gd is not None:
                     scatter(blk, edge_sums(gd, k, t, ux, uy, K, blk.py.shape))
-        gP = gP.view(*X.shape, 4)
+        gP = swap_corner_parts(gP.view(*X.shape, 4), X, Y)
         gX = gP[..., 0] + gP[..., 2].roll(1, 1)  # edge k − 1 ends at corner k
         gY = gP[..., 1] + gP[..., 3].roll(1, 1)
         it = iter(gp)
