@@ -67,11 +67,17 @@ def shape_case(steps):
 
 
 def main(argv):
+    import argparse
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = ap.add_subparsers(dest="case", required=True)
+    r = sub.add_parser("render", help="the Dr.Jit render of bench_render.py")
+    for name in ("size", "subdivisions", "repeats"):
+        r.add_argument(name, type=int)
+    s = sub.add_parser("shape", help="the paper's shape step")
+    s.add_argument("steps", type=int)
+    a = ap.parse_args(argv)
     dr.set_thread_count(2)
-    if argv[0] == "render":
-        out = render_case(int(argv[1]), int(argv[2]), int(argv[3]))
-    else:
-        out = shape_case(int(argv[1]))
+    out = render_case(a.size, a.subdivisions, a.repeats) if a.case == "render" else shape_case(a.steps)
     print(gendr_drjit.__file__, out)
 
 

@@ -15,7 +15,6 @@ at τ 0.01, 0.001 and squared logistic at 0.1, 0.01. Pose (bin 15-35): 20 steps 
 compares them with the model): shape logistic τ = 0.01 and Cauchy τ = 0.001 (100 steps), pose
 logistic with 16 pairs and 200 steps.
 """
-import sys
 from pathlib import Path
 
 from gendr_experiments.sweep import execute, full_config, run_config
@@ -50,12 +49,17 @@ def holdout():
 
 
 if __name__ == "__main__":
-    args = sys.argv[1:]
-    held = "--holdout" in args
-    args = [a for a in args if a != "--holdout"]
-    name = "cost_holdout.jsonl" if held else "cost_timing.jsonl"
-    out = args[0] if args else str(Path(__file__).parent / "results" / name)
-    cfgs = holdout() if held else configs()
+    import argparse
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--holdout", action="store_true", help="the three full-length runs the fit never sees")
+    ap.add_argument("out", nargs="?", metavar="OUT.jsonl",
+                    help="rows file (default experiments/results/cost_timing.jsonl, --holdout: cost_holdout.jsonl)")
+    a = ap.parse_args()
+    name = "cost_holdout.jsonl" if a.holdout else "cost_timing.jsonl"
+    out = a.out or str(Path(__file__).parent / "results" / name)
+    if not out.endswith(".jsonl") or Path(out).is_dir():
+        ap.error(f"OUT {out!r} must name a .jsonl rows file")
+    cfgs = holdout() if a.holdout else configs()
     run_config(dict(cfgs[0], steps=1))  # warm-up: imports and one-time set-up stay out of the rows
     rows = execute(cfgs, out, workers=0, other_code="keep")
     for r in rows:
