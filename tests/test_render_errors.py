@@ -436,3 +436,16 @@ def test_integer_colours_0_1_render_as_floats(backend):
     as_int = r.to_numpy(r.render(V, F, CAM, vertex_colors=np.array([[1, 0, 1]] * 4, np.int16)))
     as_float = r.to_numpy(r.render(V, F, CAM, vertex_colors=np.array([[1.0, 0.0, 1.0]] * 4, np.float32)))
     np.testing.assert_array_equal(as_int, as_float)
+
+
+@pytest.mark.parametrize("backend", _backends())
+@pytest.mark.parametrize("scale,fov", [(1e20, 60.0), (1.0, 1e-30)])
+def test_corners_beyond_float32_range_are_an_error_not_garbage(backend, scale, fov):
+    """(a triangle covering the view rendered alpha 0 with torch and 0.5 with drjit: its squared
+    edge lengths overflowed float32); float64 holds them and renders it covering the view"""
+    tri = np.array([[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [0.0, 1.0, 0.0]]) * scale
+    r, cam = renderer(backend=backend), gendr.PerspectiveCamera(eye=(0.0, 0.0, 3.0), fov_y=fov)
+    with pytest.raises(gendr.errors.InputValueError, match="beyond what float32 edge lengths can hold"):
+        r.render(tri.astype(np.float32), [[0, 1, 2]], cam)
+    alpha = r.to_numpy(r.render(tri, [[0, 1, 2]], cam))[..., 3]
+    assert alpha.min() > 0.99

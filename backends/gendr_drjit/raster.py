@@ -31,7 +31,7 @@ from dataclasses import replace
 import numpy as np
 import drjit as dr
 
-from gendr.renderer import LAMBERT_KINK_ULPS
+from gendr.renderer import LAMBERT_KINK_ULPS, check_screen_reach
 from gendr.tconorms import HARD_OR, MAX, MEAN
 
 #: tile edges tried in order (see tile_size); TILE != 0 forces one
@@ -211,6 +211,11 @@ def prepare_faces(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, color
             nx, ny = sx * px_ / -pz_ + ox, sy * py_ / -pz_ + oy
         X.append(nx * (W / H))
         Y.append(ny)
+    if clip is None and m:  # (frozen replays read nothing back: unchecked there)
+        reach = dr.maximum(dr.abs(dr.detach(X[0])), dr.abs(dr.detach(Y[0])))
+        for k in range(1, K):
+            reach = dr.maximum(reach, dr.maximum(dr.abs(dr.detach(X[k])), dr.abs(dr.detach(Y[k]))))
+        check_screen_reach(float(dr.max(reach, axis=None)[0]), "float64" if T.double else "float32")
     fc = Faces()
     fc.B, fc.F, fc.K, fc.X, fc.Y, fc.valid = B, F, K, X, Y, valid
     fc.all_inside = all_in

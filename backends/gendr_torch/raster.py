@@ -22,7 +22,7 @@ from torch.utils.checkpoint import checkpoint
 
 from gendr.cameras import VEC3
 from gendr.errors import ShapeError
-from gendr.renderer import LAMBERT_KINK_ULPS
+from gendr.renderer import LAMBERT_KINK_ULPS, check_screen_reach
 from gendr.tconorms import MAX, MEAN
 
 from .fused import FusedChains
@@ -154,6 +154,8 @@ def prepare_faces(settings, camera, verts, faces, colors, per_face, texture=None
     X, Y = X.reshape(B * F, K), Y.reshape(B * F, K)
     with torch.no_grad():
         box = torch.stack([X.amin(-1), X.amax(-1), Y.amin(-1), Y.amax(-1)], 0)
+        if box.numel():
+            check_screen_reach(float(box.abs().max()), str(X.dtype).replace("torch.", ""))
         area2 = (X * Y.roll(-1, 1) - X.roll(-1, 1) * Y).sum(-1)  # twice the signed area
     shade = tex = None
     if settings.blend is not None or normals:
