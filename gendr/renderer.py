@@ -134,6 +134,25 @@ def _dtype_name(value) -> str:
     return str(dtype).rsplit(".", 1)[-1].lower()  # torch.int64, VarType.Int32 -> int64, int32
 
 
+def _check_params_fit(settings, dtype: str) -> None:
+    """ParameterError for a distribution or T-conorm parameter (a number) that a float32 render
+    cannot hold: beyond float32's range or below its smallest normal number in magnitude (frank
+    p = 1e40 rendered alpha −inf, p = 1e-39 +inf; gamma shape = 1e300 raised torch's overflow)."""
+    if dtype != "float32":
+        return
+    info = np.finfo(np.float32)
+    for owner, setting in (("distribution", settings.distribution), ("tconorm", settings.tconorm)):
+        for name, value in setting.params:
+            if isinstance(value, numbers.Real) and value != 0 and not float(info.tiny) <= abs(value) <= float(info.max):
+                raise ParameterError(f"{owner} {setting.name!r} parameter {name}={value:g} is beyond what float32 "
+                                     f"holds (normal numbers {info.tiny:.3g} ... {info.max:.3g} in magnitude): "
+                                     f"render in float64 (float64 vertices)")
+    shift = settings.distribution.shift
+    if isinstance(shift, numbers.Real) and not abs(shift) <= float(info.max):
+        raise ParameterError(f"distribution {settings.distribution.name!r} parameter shift={shift:g} is beyond what "
+                             f"float32 holds ({info.max:.3g}): render in float64 (float64 vertices)")
+
+
 def _check_batch(name, shape, batched_ndim, B):
     """An input with a leading batch (``len(shape) == batched_ndim``) must have 1 or the render's B."""
     if len(shape) == batched_ndim and shape[0] not in (1, B):
@@ -426,6 +445,7 @@ class Renderer:
                 raise InputValueError(f"{name} must be finite; {name}{list(bad[0])} = {bad[1]}")
             colors, per_face = c, name == "face_colors"
         settings = self.settings
+        _check_params_fit(settings, _dtype_name(verts))
         if not isinstance(settings.tau, float):  # a tensor τ: an optimizer may have moved it out of its domain
             _check_tau(settings.tau)
         if settings.tconorm.learnable or settings.distribution.learnable:  # re-read and re-check

@@ -449,3 +449,21 @@ def test_corners_beyond_float32_range_are_an_error_not_garbage(backend, scale, f
         r.render(tri.astype(np.float32), [[0, 1, 2]], cam)
     alpha = r.to_numpy(r.render(tri, [[0, 1, 2]], cam))[..., 3]
     assert alpha.min() > 0.99
+
+
+@pytest.mark.parametrize("backend", _backends())
+@pytest.mark.parametrize("dist,tcn,words", [
+    ("logistic", gendr.tconorm("frank", p=1e40), "tconorm 'frank' parameter p=1e+40"),
+    ("logistic", gendr.tconorm("frank", p=1e-40), "tconorm 'frank' parameter p=1e-40"),
+    (gendr.distribution("gamma", shape=1e39), "probabilistic", "distribution 'gamma' parameter shape=1e+39"),
+    (gendr.distribution("logistic", shift=1e40), "probabilistic", "distribution 'logistic' parameter shift=1e+40"),
+])
+def test_parameters_float32_cannot_hold_are_an_error(backend, dist, tcn, words):
+    """(frank p = 1e40 rendered alpha -inf in float32, p = 1e-40 +inf; gamma shape 1e300 raised a raw
+    torch overflow error); float64 renders them, alpha in [0, 1]"""
+    r = renderer(backend=backend, distribution=dist, tconorm=tcn, tau=0.3)
+    with pytest.raises(ParameterError, match=re.escape(words) + " is beyond what float32 holds"):
+        r.render(V.float(), F, CAM)
+    if "gamma" not in words:  # (gamma's continued fraction warns of a division by 0 at shape 1e39)
+        alpha = r.to_numpy(r.render(V, F, CAM))[..., 3]
+        assert np.isfinite(alpha).all() and alpha.min() >= 0.0 and alpha.max() <= 1.0
