@@ -36,7 +36,7 @@ def check_screen_reach(reach: float, dtype: str) -> None:
     """InputValueError where a face's projected corner lies so far out (``reach``: the largest
     |X| or |Y|, screen units) that its squared edge lengths overflow ``dtype`` ("float32" or
     "float64"): the backends would render garbage, each its own. Reached by absurd scales (float32
-    vertices ~1e20, fov_y ~1e-30°) or a near plane ~1e-19 of the scene's size."""
+    vertices ~1e20, fov_y ~1e-30°) or a near plane ~1e-18 of the scene's size."""
     limit = math.sqrt(np.finfo(dtype).max) / 16.0  # (2·limit)² · 2 stays finite
     if not reach <= limit:
         raise InputValueError(f"a face projects to {reach:.3g} screen units, beyond what {dtype} edge lengths "
@@ -392,11 +392,12 @@ class Renderer:
         Pixel (row i, column j) is sampled at its centre; row 0 is the top of the image.
 
         Raises (:mod:`gendr.errors`): ShapeError (shapes above; a colour, texture or uv batch other
-        than 1 or B), DTypeError (integer vertices, uint8 colours or integer colours beyond 0/1, float indices), InputValueError (non-finite
-        values, indices out of range, a face projecting beyond the dtype's range: check_screen_reach), ParameterError (both colour kinds, uvs without a texture, a
-        camera that is not a gendr camera, a tensor ``tau`` or a learnable parameter out of its
-        domain), DegenerateCameraError (a camera tensor
-        without a defined view).
+        than 1 or B), DTypeError (integer vertices, uint8 colours or integer colours beyond 0/1,
+        float indices), InputValueError (non-finite values, indices out of range, a face projecting
+        beyond what the dtype holds: :func:`check_screen_reach`), ParameterError (both colour kinds,
+        uvs without a texture, a camera that is not a gendr camera, a tensor ``tau`` or a learnable
+        parameter out of its domain, a parameter float32 cannot hold in a float32 render),
+        DegenerateCameraError (a camera tensor without a defined view).
 
         >>> import torch, gendr
         >>> from gendr import scenes
