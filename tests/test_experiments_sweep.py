@@ -35,7 +35,9 @@ def test_run_config_row_fields():
     assert prov["code_hash"] == row["code_hash"] == source_hash("torch")
     assert prov["backend"] == "torch" and prov["device"] == "cpu" and prov["dtype"] == "float32"
     assert prov["torch_threads"] == 1 and prov["versions"]["gendr"]
-    assert row["label"] == "uniform|probabilistic" if row["instance"] == 1 else "|" in row["label"]
+    # instance 5 of the grid: uniform (plain) with hamacher(4), named from the grid, not the config
+    assert (row["instance"], row["label"]) == (5, "uniform|hamacher(p=4)")
+    assert (row["distribution"], row["squared"], row["tconorm"]) == ("uniform", False, "hamacher(p=4)")
     assert 0.0 <= row["metric"] <= 1.0
     json.dumps(row, allow_nan=False)
 

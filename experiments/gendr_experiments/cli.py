@@ -456,8 +456,10 @@ def cmd_verify(a) -> int:
         fmt = lambda x: "None" if x is None else f"{x:9.4g}"
         code = "same code" if v["same_code"] else f"other code ({v['stored_code']})"
         cpu = "same cpu" if v["same_cpu"] else f"other cpu ({v['stored_simd'] or 'not recorded'})"
+        resid = (f", median error drift {v['residual_drift']:.3g} deg (tol {v['residual_tolerance']:.3g})"
+                 if "residual_drift" in v else "")
         print(f"{v['key']:16s} {str(v['label'])[:40]:40s} {fmt(v['stored']):>9s} {fmt(v['now']):>9s} "
-              f"{v['drift']:9.3g} {v['tolerance']:6.3g} {code}, {cpu}{'' if v['ok'] else '  DRIFT'}")
+              f"{v['drift']:9.3g} {v['tolerance']:6.3g} {code}, {cpu}{resid}{'' if v['ok'] else '  DRIFT'}")
     bad = [v for v in report if not v["ok"]]
     print(f"{len(report)} rows re-run, {len(bad)} beyond tolerance, {sum(not v['same_code'] for v in report)} "
           f"made by other code, {sum(not v['same_cpu'] for v in report)} on another CPU SIMD level "
