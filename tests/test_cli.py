@@ -182,7 +182,6 @@ def test_list(capsys):
     assert code == 0 and "torch" in out
 
 
-@pytest.mark.skipif(not hasattr(gendr, "paper_grid"), reason="gendr.paper_grid() not available yet")
 def test_list_grid(capsys):
     code, out, _ = _run(capsys, "list", "grid")
     grid = gendr.paper_grid()
@@ -277,7 +276,6 @@ def test_missing_mesh_file(tmp_path, capsys):
     assert code == 2 and "missing.obj" in _error_line(err)
 
 
-@pytest.mark.skipif(not hasattr(gendr, "paper_grid"), reason="gendr.paper_grid() not available yet")
 def test_render_instance(tmp_path, capsys):
     grid = gendr.paper_grid()
     k = next(i for i, inst in enumerate(grid) if inst.tconorm.name == "probabilistic")

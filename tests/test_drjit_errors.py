@@ -116,6 +116,9 @@ def test_no_faces_gives_the_background(blend):
         V.clone().requires_grad_(True), f, CAM).detach() for be in ("torch", "drjit")]
     assert imgs[0].shape == imgs[1].shape == (1, 8, 10, 4)
     assert float((imgs[0] - imgs[1]).abs().max()) == 0.0
+    assert float(imgs[0][..., 3].abs().max()) == 0.0  # no coverage
+    if blend is not None:  # (without a blend the RGB channels are 0: alpha only)
+        assert torch.equal(imgs[0][..., :3], torch.tensor([0.1, 0.2, 0.3], dtype=imgs[0].dtype).expand(1, 8, 10, 3))
 
 
 @pytest.mark.parametrize("case", ["no faces", "heaviside or"])

@@ -17,6 +17,8 @@ def test_report_smoke(tmp_path):
     assert html.count("data:image/png;base64,") >= 8
     js = json.loads((tmp_path / "summary.json").read_text())
     hl = js["hard_limit"]
+    # (with no reference installed the checks below would hold as 0 == 0: install.sh installs both)
+    assert js["references"], "no reference renderer (pyrender, Mitsuba 3) is installed: run install.sh"
     assert hl["checks"] == 2 * 2 * len(js["references"])  # cameras x instances x references
     assert hl["differ_unambiguous_total"] == 0 and hl["failed"] == 0
     assert js["gradients"]["checks"] == 4 and js["gradients"]["instances"] == [271]
