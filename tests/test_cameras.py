@@ -208,7 +208,7 @@ def test_batched_lens_parameters_equal_separate_renders(backend):
         batched = r.render(v, f, batched_cam, vertex_colors=c)
         for k in range(3):
             one = r.render(v, f, single(k), vertex_colors=c)
-            assert (batched[k] - one[0]).abs().max() < 1e-6, k
+            assert (batched[k] - one[0]).abs().max() < 1e-12, k  # float64, as the sibling batch tests
 
 
 @pytest.mark.parametrize("kind", ["eye", "fov_y", "orbit", "intrinsics", "xmag"])
