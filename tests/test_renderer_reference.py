@@ -1,6 +1,10 @@
 """The fast path (gendr.Renderer, torch backend) against the naive dense reference (naive_reference.py).
 
-float64: forward and backward agree to ABS_TOL = 1e-6 absolute. Backward is compared through
+float64: forward and backward agree to TOL = 1e-9, absolute for the images and relative to
+max(1, max |reference gradient|) for the gradients: both evaluate the same float64 formulas in
+another order, measured ≤ 5e-14 for the images and ≤ 3e-12 (2e-14 relative) for the gradients over
+the default run, so 1e-9 leaves four orders of magnitude for rounding while any formula or gradient
+error (1e-6 and up) fails. Backward is compared through
 loss = (image * fixed_randn).sum(), gradients w.r.t. the vertices, τ (a 0-d tensor requiring grad)
 and the camera's parameters (tensors requiring grad).
 
@@ -23,7 +27,7 @@ import gendr
 from gendr_torch.ops import torch_ops
 from naive_reference import render_naive_settings
 
-ABS_TOL = 1e-6  # float64, forward and backward
+TOL = 1e-9  # float64: forward absolute, gradients relative to max(1, max |reference|) (see above)
 F32_FWD_TOL = 2e-5  # float32 fast path vs float64 reference, values in [0, 1] (measured ~2e-6)
 F32_GRAD_RTOL = 1e-3  # float32 gradients: |g32 − g64| <= F32_GRAD_RTOL · max|g64| + 1e-5 (measured ~5e-5)
 
@@ -194,7 +198,7 @@ def max_errors(fast, ref, fg, rg):
     return fwd, bwd
 
 
-def assert_close(fast, ref, fg, rg, tol=ABS_TOL):
+def assert_close(fast, ref, fg, rg, tol=TOL):
     assert fast.shape == ref.shape
     assert torch.isfinite(fast).all(), "fast path output has non-finite values"
     assert torch.isfinite(ref).all(), "reference output has non-finite values"
@@ -202,8 +206,9 @@ def assert_close(fast, ref, fg, rg, tol=ABS_TOL):
     assert fwd <= tol, f"forward max abs error {fwd:.3g} > {tol:g}"
     for k in rg:
         assert torch.isfinite(fg[k]).all(), f"fast path gradient w.r.t. {k} has non-finite values"
-        assert bwd[k] <= tol, (f"gradient w.r.t. {k}: max abs error {bwd[k]:.3g} > {tol:g} "
-                               f"(max |ref| {rg[k].abs().max().item():.3g})")
+        scale = max(1.0, rg[k].abs().max().item())
+        assert bwd[k] <= tol * scale, (f"gradient w.r.t. {k}: max abs error {bwd[k]:.3g} > {tol:g} · {scale:.3g} "
+                                       f"(max |ref|)")
 
 
 # ------------------------------------------------------------------------------------------------
