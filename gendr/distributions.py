@@ -864,8 +864,7 @@ def _gamma_parts(ops, x, k, shape_derivatives=False):
         return parts + (dt,) if shape_derivatives else parts
 
     def finite_sum(x):  # integer k: Q = e^(−x) Σ_{n<k} x^n/n! exactly, positive terms (no fraction);
-        # t = x^k / ((k−1)!·Σ) is the fraction's t, so the derivatives read it alike. Beyond
-        # _GAMMA_SUM_MAX (Q underflows in float64 long before) log Q = −x, from finite clamped terms
+        # t = x^k / ((k−1)!·Σ) is the fraction's t, so the derivatives read it alike (−t/x)
         xc = ops.where(use_series, sw, x)
         big = xc > _GAMMA_SUM_MAX
         xs = ops.where(big, _GAMMA_SUM_MAX, xc)
@@ -874,8 +873,18 @@ def _gamma_parts(ops, x, k, shape_derivatives=False):
         for n in range(int(k) - 1, 0, -1):  # Horner: 1 + x(1 + x/2(1 + ... (1 + x/(k−1))))
             total = 1.0 + total * xs * (1.0 / n)
             power = power * xs
-        log_q = ops.where(big, -xc, ops.log(total) - xs)
-        t = power / (math.factorial(int(k) - 1) * total)
+        # beyond _GAMMA_SUM_MAX, where x^k would overflow float32: the same sum in powers of y = 1/x,
+        # Σ = x^(k−1)/(k−1)! · s(y), s(y) = Σ_j (k−1)!/(k−1−j)! y^j, so log Q = (k−1) log x −
+        # log (k−1)! + log s − x and t/x = 1/s (before: log Q = −x and t from x clamped to 1e4,
+        # a slope −0.9999 for k = 2 at any x > 1e4)
+        xb = ops.where(big, xc, 2.0 * _GAMMA_SUM_MAX)
+        y = 1.0 / xb
+        s = ops.full_like(xb, 1.0)
+        for f in range(1, int(k)):  # Horner: 1 + (k−1)y(1 + (k−2)y(... (1 + y)))
+            s = 1.0 + s * y * float(f)
+        log_q = ops.where(big, (k - 1.0) * ops.log(xb) - math.lgamma(k) + ops.log(s) - xb, ops.log(total) - xs)
+        # (a big lane's t is given over the clamped xs, which the slope −t/xs reads as −1/s)
+        t = ops.where(big, xs / s, power / (math.factorial(int(k) - 1) * total))
         return ops.log1p(-ops.exp(log_q)), log_q, xs, t
 
     upper = finite_sum if k in _GAMMA_INTEGER_SHAPES and not shape_derivatives else fraction

@@ -469,9 +469,16 @@ def test_gamma_attached_derivatives(k):
         # switch: slope up to ~5e-6) changes with x; well above the finite-difference noise (1e-10)
         np.testing.assert_allclose(attached[x > 0][ok], fd[ok], rtol=1e-5, atol=2e-7, err_msg=name)
     np.testing.assert_array_equal(f.cdf(D, x, shape=k), f.pdf(O, x, shape=k))
-    # far tail: d log Q/dx -> -1, finite where Q underflows
-    big = np.array([200.0, 1e3, 1e6, 1e300])
-    np.testing.assert_allclose(f.log_sf(D, big, shape=k), -1.0 + (k - 1.0) / big, rtol=1e-3)
+    # far tail, where Q underflows: log Q and its slope −x^(k−1)e^(−x)/Γ(k, x) against mpmath (50
+    # digits), to 1e-12 relative (the formulas are closed forms there: rounding ~1e-15). Compared with
+    # the asymptote −1 + (k − 1)/x to 1e-3 before, which hid integer k's slope of −0.9999 (k = 2) and
+    # its log Q = −x (0.3 % off at k = 5) beyond x = 1e4
+    big = np.array([200.0, 1.1e4, 1e6, 1e300])
+    with mpmath.workdps(50):
+        slope = [float(-mpmath.power(v, k - 1) * mpmath.exp(-v) / mpmath.gammainc(k, v)) for v in big]
+        log_q = [float(mpmath.log(mpmath.gammainc(k, v, regularized=True))) for v in big]
+    np.testing.assert_allclose(f.log_sf(D, big, shape=k), slope, rtol=1e-12)
+    np.testing.assert_allclose(f.log_sf(O, big, shape=k), log_q, rtol=1e-12)
 
 
 def test_gamma_nonpositive_and_special_cases():
