@@ -35,6 +35,8 @@ def test_changing_tau_vertices_and_camera_compiles_nothing():
     for tau, fov in ((0.012, 40.0), (0.02, 41.5), (0.005, 38.0)):
         stats = kernel_stats(lambda: _fwd_bwd(tau, base + 0.01 * rng.standard_normal(base.shape).astype(np.float32), fov))
         assert stats["kernels_compiled"] == 0, f"tau={tau}, fov={fov}: {stats['kernels_compiled']} kernels compiled"
+        # 24 launches measured (render + backward, at 986cbd8): the bound catches a per-face or
+        # per-tile launch pattern (hundreds), not a kernel or two more
         assert stats["kernels_launched"] <= 40
 
 
