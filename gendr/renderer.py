@@ -31,6 +31,12 @@ ENTRY_POINT_GROUP = "gendr.backends"
 #: picked a different one-sided derivative. Colours change by at most diffuse·LAMBERT_KINK_ULPS·eps.
 LAMBERT_KINK_ULPS = 256
 
+#: near-plane clipped renders: an edge from a corner farther than this from the image centre (screen
+#: units, max norm) to a nearer corner is measured from the nearer one, in both backends alike (the
+#: rounding of a pixel's distance to an edge is ~ulp of the corner it is measured from; clipped
+#: corners lie at ~x/near). Closer corners keep the plain rule, so unclipped renders are unchanged
+FAR_CORNER = 4.0
+
 
 def check_screen_reach(reach: float, dtype: str) -> None:
     """InputValueError where a face's projected corner lies so far out (``reach``: the largest

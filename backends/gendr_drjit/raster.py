@@ -31,7 +31,7 @@ from dataclasses import replace
 import numpy as np
 import drjit as dr
 
-from gendr.renderer import LAMBERT_KINK_ULPS, check_screen_reach
+from gendr.renderer import FAR_CORNER, LAMBERT_KINK_ULPS, check_screen_reach
 from gendr.tconorms import HARD_OR, MAX, MEAN
 
 #: tile edges tried in order (see tile_size); TILE != 0 forces one
@@ -862,11 +862,6 @@ def _face_edges(fc, T, f):
             kc = dr.select(swap, T.UInt32(k + 4), T.UInt32(k))
         edges.append((Px, Py, Ex, Ey, nx, ny, c, il, kc))
     return edges
-
-
-#: near-clipped renders: edges from a corner farther than this (screen units, max norm) to a nearer
-#: one are measured from the nearer corner (the torch backend's FAR_CORNER, same rule)
-FAR_CORNER = 4.0
 
 
 def _column_edges(edges, px):

@@ -22,7 +22,7 @@ from torch.utils.checkpoint import checkpoint
 
 from gendr.cameras import VEC3
 from gendr.errors import ShapeError
-from gendr.renderer import LAMBERT_KINK_ULPS, check_screen_reach
+from gendr.renderer import FAR_CORNER, LAMBERT_KINK_ULPS, check_screen_reach
 from gendr.tconorms import MAX, MEAN
 
 from .fused import FusedChains
@@ -164,11 +164,6 @@ def prepare_faces(settings, camera, verts, faces, colors, per_face, texture=None
         tex = texture[0] if texture[0].ndim == 4 else texture[0][None]
     return Faces(B, F, K, X, Y, box, valid.reshape(-1), area2 > 0, shade, camera.near, camera.far, tex,
                  UV_ROW + (6 if texture is not None else 0))
-
-
-#: near-plane clipped renders (K = 4): an edge from a corner farther than this from the image centre
-#: (screen units, max norm) to a nearer corner is measured from the nearer one (see anchor_swapped)
-FAR_CORNER = 4.0
 
 
 def anchor_swapped(X, Y):
