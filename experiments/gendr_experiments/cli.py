@@ -272,7 +272,7 @@ def select_instances(a) -> list:
             for s in spec.split(","):
                 s = s.strip()
                 if s not in labels and s not in extra:
-                    raise ValueError(f"unknown {what} label {s!r}; known: {', '.join(list(labels) + list(extra))}")
+                    raise UsageError(f"unknown {what} label {s!r}; known: {', '.join(list(labels) + list(extra))}")
                 idx.append(labels.index(s) if s in labels else s)
             return idx
         variants = {"plain": 0, "squared": 1}
@@ -305,16 +305,12 @@ def cmd_sweep(a) -> int:
         print("T-conorms (--tconorms):\n  " + "\n  ".join(tl))
         print("not T-conorms (--tconorms; runs outside the grid):\n  " + "\n  ".join(EXTRA_COLUMNS))
         return 0
-    try:
-        instances = select_instances(a)
-    except ValueError as exc:
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
-        return 2
+    instances = select_instances(a)
     if not instances:
         print(f"{PROG}: error: choose instances with --instances and/or --dists/--tconorms", file=sys.stderr)
         return 2
     _apply_data(a)
-    from .sweep import OtherCodeError, full_config
+    from .sweep import full_config
     base = _base_settings(a, protocol=a.protocol, backend=a.backend)
     preset = full_config(a.experiment, base)
     extra = {}
@@ -346,13 +342,9 @@ def cmd_sweep(a) -> int:
               progress=not a.quiet, other_code=a.other_code)
     t0 = time.perf_counter()
     n0 = _stored_lines(a.output)
-    try:
-        best = best_setting_search(a.experiment, instances, taus=taus, lrs=lrs, seeds=_ints(a.seeds, "--seeds"),
-                                   base=base, extra_axes=extra, refine=not a.no_refine,
-                                   fine_steps=tuple(_floats(a.fine_steps, "--fine-steps")), **kw)
-    except OtherCodeError as exc:
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
-        return 2
+    best = best_setting_search(a.experiment, instances, taus=taus, lrs=lrs, seeds=_ints(a.seeds, "--seeds"),
+                               base=base, extra_axes=extra, refine=not a.no_refine,
+                               fine_steps=tuple(_floats(a.fine_steps, "--fine-steps")), **kw)  # (errors: main)
     rows = load_rows(a.output)
     if a.csv:
         write_csv(rows, a.csv)
@@ -521,28 +513,18 @@ def cmd_cost(a) -> int:
 
 
 def cmd_tune(a) -> int:
-    from gendr.errors import GendrError
     from .tune import tune
     _apply_data(a)
     if a.top < 1:
         raise UsageError(f"--top must be >= 1, got {a.top}")
     _writable(a.json, "--json")
     _rows_file(a.output)
-    try:
-        instances = select_instances(a) if (a.instances or a.dists or a.tconorms) else None
-    except ValueError as exc:
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
-        return 2
+    instances = select_instances(a) if (a.instances or a.dists or a.tconorms) else None
     base = _base_settings(a, backend=a.backend)
-    try:
-        res = tune(a.target, budget=a.budget, store=a.output, protocol=a.protocol, instances=instances,
-                   taus=_floats(a.taus, "--taus"), lrs=_floats(a.lrs, "--lrs") if a.lrs else None,
-                   seeds=_ints(a.seeds, "--seeds"), fine_steps=tuple(_floats(a.fine_steps, "--fine-steps")),
-                   base=base, workers=a.workers, top=a.top,
-                   other_code=a.other_code)
-    except GendrError as exc:
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
-        return 2
+    res = tune(a.target, budget=a.budget, store=a.output, protocol=a.protocol, instances=instances,
+               taus=_floats(a.taus, "--taus"), lrs=_floats(a.lrs, "--lrs") if a.lrs else None,
+               seeds=_ints(a.seeds, "--seeds"), fine_steps=tuple(_floats(a.fine_steps, "--fine-steps")),
+               base=base, workers=a.workers, top=a.top, other_code=a.other_code)  # (errors: main)
     p = res.plan
     print(f"{res.runs} new runs in {res.seconds:.1f} s (budget {p['budget_s']:g} s): coarse grid for "
           f"{p['coarse_instances']} of {p['candidates']} candidates, fine grid for {p['fine_instances']}; rows in "

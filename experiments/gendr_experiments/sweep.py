@@ -32,8 +32,8 @@ from gendr.errors import GendrError, ParameterError
 
 from .common import config_hash, provenance, source_hash
 
-__all__ = ["EXPERIMENTS", "OtherCodeError", "SchedulerUnreachableError", "full_config", "expand", "run_config", "ResultStore", "execute", "load_rows",
-           "aggregate", "best_setting_search", "fine_grid", "summarize_best", "write_csv", "verify_rows",
+__all__ = ["EXPERIMENTS", "OtherCodeError", "SchedulerUnreachableError", "full_config", "expand", "run_config",
+           "ResultStore", "execute", "load_rows", "aggregate", "best_setting_search", "fine_grid", "summarize_best", "write_csv", "verify_rows",
            "DRIFT_TOLERANCE"]
 
 #: experiment name -> (defaults, runner path, the config key the τ grid sets, lower_is_better aggregate)
@@ -298,9 +298,11 @@ def execute(configs, store: ResultStore | str, *, workers: int | None = None, sc
     if todo and not late():
         if scheduler is not None:
             from distributed import Client, as_completed as dask_completed
-            if not isinstance(scheduler, Client):
+            if isinstance(scheduler, Client):
+                client = scheduler
+            else:
                 _reach_scheduler(scheduler)
-            client = scheduler if isinstance(scheduler, Client) else Client(scheduler)
+                client = Client(scheduler)
             try:
                 _check_cluster_code(client, {c.get("backend", "torch") for _, c in todo})
                 futs = [client.submit(run_config, c, key=f"gendr-run-{k}", pure=False) for k, c in todo]
