@@ -46,9 +46,13 @@ def family_arg(d, x):
 
 
 def eff_log_cdf(d, x):
-    """log F_eff(x) from the family's log_cdf / log_sf."""
+    """log F_eff(x) from the family's log_cdf / log_sf (both optional: else from its CDF)."""
     f, kw, y = d.family, d.kwargs, family_arg(d, x)
-    return f.log_sf(O, y, **kw) if d.reversed else f.log_cdf(O, y, **kw)
+    log = f.log_sf if d.reversed else f.log_cdf
+    if log is not None:
+        return log(O, y, **kw)
+    with np.errstate(divide="ignore"):
+        return np.log1p(-f.cdf(O, y, **kw)) if d.reversed else np.log(f.cdf(O, y, **kw))
 
 
 def test_every_registered_family_is_tested():

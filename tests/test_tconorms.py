@@ -227,7 +227,11 @@ def test_generator_basics(t):
     assert np.all(np.isfinite(g)) and np.all(g > 0)
     assert np.all(np.diff(g) > 0), "generator not strictly increasing"
     g1 = t.generator_at_one
-    assert (math.isinf(g1) if t.name != "yager" else g1 == 1.0)
+    # the paper's families are strict (g(1) = inf) but Yager, nilpotent with g(1) = 1; a family
+    # registered elsewhere (tests/test_extending.py) may be either
+    if t.name in {name for name, _ in SETTINGS}:
+        assert g1 == (1.0 if t.name == "yager" else math.inf)
+    assert g1 > 0
     assert float(G(t, 1.0)) == g1
     # the inverse undoes the generator, including both ends
     np.testing.assert_allclose(Ginv(t, G(t, GRID)), GRID, rtol=0, atol=COMPOSED)
