@@ -98,3 +98,49 @@ def test_quoted_values_are_what_the_examples_print():
         for w, g in zip(want[1:], got[1:]):
             digits = len(w.split(".")[1])  # the quoted value, rounded to the digits it shows
             assert abs(float(g) - float(w)) <= 0.5 * 10.0 ** -digits, (want, got)
+
+
+def documented_commands():
+    """[(file, command)]: the ``gendr`` command lines of the shell blocks of README.md and docs/*.md,
+    continuation lines joined, environment assignments and the ``.venv/bin/`` prefix dropped."""
+    out = []
+    for rel in ["README.md", *DOCS]:
+        text = (ROOT / rel).read_text()
+        for m in re.finditer(r"```(\w*)\n(.*?)```", text, re.S):
+            if m.group(1) in ("python", "toml", "json", "text"):
+                continue
+            for cmd in re.sub(r"\\\n\s*", " ", m.group(2)).splitlines():
+                cmd = re.sub(r"^(\w+=\S*\s+)+", "", cmd.strip().removeprefix("$ "))
+                cmd = re.sub(r"^\S*/gendr ", "gendr ", cmd)
+                if cmd.startswith("gendr "):
+                    out.append((rel, cmd))
+    return out
+
+
+COMMANDS = documented_commands()
+
+
+def test_documented_commands_parse():
+    """Each documented ``gendr`` command line is accepted by the parser of its command (gendr's own,
+    then the plug-in's: experiment, validate, gallery) as written; nothing runs. Lines whose arguments
+    are a "..." placeholder are left out."""
+    import shlex
+    from gendr.cli import build_parser
+    from gendr_experiments.cli import build_parser as experiment_parser
+    from gendr_validation.cli import gallery_parser, validate_parser
+    plugins = {"experiment": experiment_parser, "validate": validate_parser, "gallery": gallery_parser}
+    checked = []
+    for rel, cmd in COMMANDS:
+        args = shlex.split(cmd, comments=True)[1:]
+        if any("..." in a or "…" in a for a in args):
+            continue
+        err = io.StringIO()
+        try:
+            with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
+                ns = build_parser(describe_plugins=False).parse_args(args)
+                if ns.command in plugins:
+                    plugins[ns.command]().parse_args(ns.plugin_args)
+        except SystemExit as e:
+            assert e.code == 0, f"{rel}: `{cmd}` does not parse: {err.getvalue().strip()}"
+        checked.append(cmd)
+    assert len(checked) >= 20, checked  # the docs have ~25 such lines: the extraction still finds them
