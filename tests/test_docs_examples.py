@@ -101,15 +101,17 @@ def test_quoted_values_are_what_the_examples_print():
 
 
 def documented_commands():
-    """[(file, command)]: the ``gendr`` command lines of the shell blocks of README.md and docs/*.md,
-    continuation lines joined, environment assignments and the ``.venv/bin/`` prefix dropped."""
+    """[(file, command)]: the ``gendr`` commands of the shell blocks of README.md and docs/*.md
+    (continuation lines joined, chains split at && ; ||, environment assignments and the
+    ``.venv/bin/`` prefix dropped)."""
     out = []
     for rel in ["README.md", *DOCS]:
         text = (ROOT / rel).read_text()
         for m in re.finditer(r"```(\w*)\n(.*?)```", text, re.S):
             if m.group(1) in ("python", "toml", "json", "text"):
                 continue
-            for cmd in re.sub(r"\\\n\s*", " ", m.group(2)).splitlines():
+            lines = re.sub(r"\\\n\s*", " ", m.group(2)).splitlines()
+            for cmd in (part for line in lines for part in re.split(r"&&|;|\|\|", line)):
                 cmd = re.sub(r"^(\w+=\S*\s+)+", "", cmd.strip().removeprefix("$ "))
                 cmd = re.sub(r"^\S*/gendr ", "gendr ", cmd)
                 if cmd.startswith("gendr "):
