@@ -17,7 +17,7 @@ from dataclasses import dataclass, replace
 from functools import lru_cache
 from typing import Callable
 
-from .ops import NumpyOps, numpy_ops
+from .ops import NumpyOps, numpy_ops, quiet_numpy
 from .params import (Learnable, LearnableParams, Param, Registry, array_value, is_backend_array, plain_number,
                      validate_params, POSITIVE)
 from .errors import ParameterError
@@ -129,6 +129,7 @@ class Distribution(LearnableParams):
         return f"Distribution({self.label()!r})"
 
     # --- the effective one-dimensional CDF (reversed and shift applied, not squared) ---
+    @quiet_numpy
     def cdf(self, ops, x):
         f, kw = self.family, self.kwargs
         x = x + self.shift if self.shift else x
@@ -140,15 +141,18 @@ class Distribution(LearnableParams):
             return 1.0 - f.cdf(ops, -x, **kw)
         return f.cdf(ops, x, **kw)
 
+    @quiet_numpy
     def pdf(self, ops, x):
         f, kw = self.family, self.kwargs
         x = x + self.shift if self.shift else x
         return f.pdf(ops, -x if self.reversed else x, **kw)
 
+    @quiet_numpy
     def log_sf(self, ops, x):
         """log(1 − F(x)) of the effective CDF, relatively accurate everywhere (see cdf_and_log_sf)."""
         return self._log_sf(ops, x, self.cdf(ops, x))
 
+    @quiet_numpy
     def cdf_and_log_sf(self, ops, x):
         """``(F(x), log(1 − F(x)))``, F evaluated once.
 
@@ -193,6 +197,7 @@ class Distribution(LearnableParams):
         """Whether the family gives :meth:`odds` in closed form."""
         return self.family.odds is not None
 
+    @quiet_numpy
     def odds(self, ops, x):
         """F(x)/(1 − F(x)) of the effective CDF (families with ``has_odds`` only)."""
         f, kw = self.family, self.kwargs
@@ -201,6 +206,7 @@ class Distribution(LearnableParams):
         x = x + self.shift if self.shift else x
         return 1.0 / f.odds(ops, -x, **kw) if self.reversed else f.odds(ops, x, **kw)
 
+    @quiet_numpy
     def log_odds(self, ops, x):
         """log(F(x)/(1 − F(x))) of the effective CDF (families with ``has_odds`` only)."""
         f, kw = self.family, self.kwargs
@@ -230,6 +236,7 @@ class Distribution(LearnableParams):
         """∂x/∂d of :meth:`argument`: 1/τ, or 2|d|/τ for the squared variant (∂x/∂τ is −x/τ)."""
         return 2.0 * ops.abs(d) / tau if self.squared else ops.full_like(d, 1.0) / tau
 
+    @quiet_numpy
     def coverage(self, ops, d, tau):
         """Soft coverage ``(p, log(1 − p))`` of signed distances ``d`` at scale ``tau``."""
         return self.cdf_and_log_sf(ops, self.argument(ops, d, tau))
@@ -806,6 +813,9 @@ _GAMMA_CF_DEPTH = 11
 #: float32 over the x the renderer keeps)
 _GAMMA_INTEGER_SHAPES = frozenset(float(k) for k in range(1, 9))
 _GAMMA_SUM_MAX = 1e4  # (1e4)^8 < float32's max
+#: x = +inf (an overflowed d/τ) is read as this (finite in float32 too: Q = 0, F = 1 exactly), where
+#: log Q = k·log x − x and log f would be inf − inf
+_GAMMA_X_MAX = 3e38
 
 
 def _log_ratio(ops, x, k):
@@ -814,6 +824,10 @@ def _log_ratio(ops, x, k):
     x_near = ops.where(near, x, k)
     x_far = ops.where(near, k, x)
     return ops.where(near, ops.log1p((x_near - k) / k), ops.log(x_far) - math.log(k))
+
+
+def _finite_gamma_x(ops, x):
+    return ops.where(x == math.inf, _GAMMA_X_MAX, x)
 
 
 def _gamma_parts(ops, x, k, shape_derivatives=False):
@@ -852,7 +866,7 @@ def _gamma_parts(ops, x, k, shape_derivatives=False):
 
     def fraction(x):  # Legendre's, bottom-up from depth _GAMMA_CF_DEPTH:
         # Q = x^k e^(−x) / Γ(k) / t,  t = x+1−k − 1(1−k)/(x+3−k − 2(2−k)/(x+5−k − ...))
-        xc = ops.where(use_series, sw, x)
+        xc = ops.where(use_series, sw, _finite_gamma_x(ops, x))
         t = xc + (2.0 * _GAMMA_CF_DEPTH + 1.0 - k)
         dt = ops.full_like(xc, -1.0) if shape_derivatives else None
         for n in range(_GAMMA_CF_DEPTH, 0, -1):
@@ -865,7 +879,7 @@ def _gamma_parts(ops, x, k, shape_derivatives=False):
 
     def finite_sum(x):  # integer k: Q = e^(−x) Σ_{n<k} x^n/n! exactly, positive terms (no fraction);
         # t = x^k / ((k−1)!·Σ) is the fraction's t, so the derivatives read it alike (−t/x)
-        xc = ops.where(use_series, sw, x)
+        xc = ops.where(use_series, sw, _finite_gamma_x(ops, x))
         big = xc > _GAMMA_SUM_MAX
         xs = ops.where(big, _GAMMA_SUM_MAX, xc)
         total = ops.full_like(xs, 1.0)
@@ -892,8 +906,8 @@ def _gamma_parts(ops, x, k, shape_derivatives=False):
 
 
 def _gamma_log_pdf(ops, x, k):
-    """log f on x > 0 (finite elsewhere, where it is unused)."""
-    xs = ops.where(x > 0.0, x, 1.0)
+    """log f on x > 0 (finite elsewhere, where it is unused; −huge at x = +inf, not inf − inf)."""
+    xs = ops.where(x > 0.0, _finite_gamma_x(ops, x), 1.0)
     return (k - 1.0) * ops.log(xs) - xs - math.lgamma(k)
 
 

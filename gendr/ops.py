@@ -35,6 +35,7 @@ safe argument first (``x_safe = where(c, x, 1.0)``) so that its gradient is not 
 """
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -46,6 +47,20 @@ _lgamma = np.frompyfunc(math.lgamma, 1, 1)
 
 def _f64(fn):
     return lambda x: np.asarray(fn(np.asarray(x, dtype=np.float64)), dtype=np.float64)
+
+
+def quiet_numpy(method):
+    """Decorate a spec method ``(self, ops, ...)``: under NumPy ops, overflow and division by zero do
+    not warn. Their ±inf (and the 0 after it) are what the formulas mean — a strict generator at
+    p = 1 is +inf, a density at |x| = 1e300 underflows through an inf — and the public NumPy calls
+    should not look broken at such arguments. NaN (an invalid operation) still warns."""
+    @functools.wraps(method)
+    def call(self, ops, *args, **kwargs):
+        if isinstance(ops, NumpyOps):
+            with np.errstate(divide="ignore", over="ignore"):
+                return method(self, ops, *args, **kwargs)
+        return method(self, ops, *args, **kwargs)
+    return call
 
 
 def select_both(where, c, if_true, if_false, args):

@@ -141,9 +141,10 @@ def _dtype_name(value) -> str:
 
 
 def _check_params_fit(settings, dtype: str) -> None:
-    """ParameterError for a distribution or T-conorm parameter (a number) that a float32 render
+    """ParameterError for τ or a distribution or T-conorm parameter (a number) that a float32 render
     cannot hold: beyond float32's range or below its smallest normal number in magnitude (frank
-    p = 1e40 rendered alpha −inf, p = 1e-39 +inf; gamma shape = 1e300 raised torch's overflow)."""
+    p = 1e40 rendered alpha −inf, p = 1e-39 +inf; gamma shape = 1e300 raised torch's overflow;
+    τ = 1e-39 gave gamma NaN gradients)."""
     if dtype != "float32":
         return
     info = np.finfo(np.float32)
@@ -153,6 +154,10 @@ def _check_params_fit(settings, dtype: str) -> None:
                 raise ParameterError(f"{owner} {setting.name!r} parameter {name}={value:g} is beyond what float32 "
                                      f"holds (normal numbers {info.tiny:.3g} ... {info.max:.3g} in magnitude): "
                                      f"render in float64 (float64 vertices)")
+    tau = settings.tau_value  # (a subnormal τ overflowed d/τ to inf: NaN gradients of gamma, torch)
+    if not float(info.tiny) <= tau <= float(info.max):
+        raise ParameterError(f"Renderer parameter tau={tau:g} is beyond what float32 holds (normal numbers "
+                             f"{info.tiny:.3g} ... {info.max:.3g}): render in float64 (float64 vertices)")
     shift = settings.distribution.shift
     if isinstance(shift, numbers.Real) and not abs(shift) <= float(info.max):
         raise ParameterError(f"distribution {settings.distribution.name!r} parameter shift={shift:g} is beyond what "

@@ -48,6 +48,7 @@ from typing import Callable
 from .params import (Param, Registry, validate_params, POSITIVE, NONNEGATIVE, NEGATIVE, POSITIVE_NOT_ONE,
                      Learnable, LearnableParams, array_of as _a)
 from .errors import ParameterError
+from .ops import quiet_numpy
 
 ARCHIMEDEAN, MAX, HARD_OR, MEAN = "archimedean", "max", "or", "mean"
 #: kinds whose n-ary aggregate is a function of a per-pixel *sum* of per-pair terms: backends stream
@@ -148,10 +149,12 @@ class TConorm(LearnableParams):
     def __repr__(self) -> str:
         return f"TConorm({self.label()!r})"
 
+    @quiet_numpy
     def binary(self, ops, a, b):
         """S(a, b), the paper's two-argument formula."""
         return self.family.binary(ops, a, b, **self.kwargs)
 
+    @quiet_numpy
     def tnorm(self, ops, a, b):
         """The dual T-norm T(a, b) = 1 − S(1 − a, 1 − b) (De Morgan with the standard negation)."""
         return 1.0 - self.binary(ops, 1.0 - a, 1.0 - b)
@@ -161,12 +164,14 @@ class TConorm(LearnableParams):
             raise ValueError(f"{self!r} has no {what}: only archimedean T-conorms have one (this is a "
                              f"{self.kind!r} aggregation)")
 
+    @quiet_numpy
     def generator(self, ops, x, log1m_x=None):
         self._archimedean_only("additive generator")
         if log1m_x is None:
             log1m_x = ops.log1p(-x)
         return self.family.generator(ops, x, log1m_x, **self.kwargs)
 
+    @quiet_numpy
     def odds_generator(self, ops, log_odds):
         """g(x) from log(x/(1 − x)) (families with ``odds_generator`` only; see TConormFamily)."""
         f = self.family.odds_generator
@@ -174,6 +179,7 @@ class TConorm(LearnableParams):
             raise NotImplementedError(f"T-conorm {self.label()!r} has no generator in terms of the odds")
         return f(ops, log_odds, **self.kwargs)
 
+    @quiet_numpy
     def generator_inverse(self, ops, s):
         self._archimedean_only("additive generator")
         return self.family.generator_inverse(ops, s, **self.kwargs)
@@ -183,6 +189,7 @@ class TConorm(LearnableParams):
         self._archimedean_only("additive generator")
         return self.family.generator_at_one(**self.kwargs)
 
+    @quiet_numpy
     def aggregate(self, ops, ps, log1m_ps=None, n_faces=None):
         """The n-ary aggregate of a Python list of same-shaped arrays ``ps`` (elementwise).
 
@@ -218,6 +225,7 @@ class TConorm(LearnableParams):
             s = g if s is None else s + g
         return self.from_generator_sum(ops, s)
 
+    @quiet_numpy
     def from_generator_sum(self, ops, s):
         """A = g⁻¹(min(g(1), s)) for a sum ``s`` of generator values (archimedean kinds only)."""
         g1 = self.generator_at_one
@@ -225,6 +233,7 @@ class TConorm(LearnableParams):
             s = ops.minimum(s, ops.full_like(s, g1))
         return self.generator_inverse(ops, s)
 
+    @quiet_numpy
     def pair_term(self, ops, p, log1m_p=None):
         """The per-(pixel, face) term that the streaming kinds sum: g(p) (archimedean; ``log1m_p`` =
         log(1 − p) as for :meth:`generator`), p itself (mean)."""
@@ -234,6 +243,7 @@ class TConorm(LearnableParams):
             raise ValueError(f"{self!r} is a {self.kind}-reduction, not a sum of per-pair terms")
         return self.generator(ops, p, log1m_p)
 
+    @quiet_numpy
     def from_sum(self, ops, s, n_faces: int):
         """The aggregate from a per-pixel sum ``s`` of :meth:`pair_term` values over the faces.
 

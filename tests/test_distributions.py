@@ -549,3 +549,45 @@ def test_argument_derivative_is_the_derivative_of_argument(squared):
     tau = torch.tensor(0.02, dtype=torch.float64)
     g, = torch.autograd.grad(dist.argument(torch_ops, d, tau).sum(), d)
     torch.testing.assert_close(dist.argument_derivative(torch_ops, d.detach(), tau), g, rtol=1e-15, atol=0.0)
+
+
+@pytest.mark.parametrize("d", [distribution(n, squared=sq, **p, **v) for n, p in FAMILIES for v in VARIANTS[:2]
+                               for sq in (False, True)], ids=ids)
+def test_numpy_evaluation_warns_of_nothing(d):
+    """The NumPy spec calls are public (a user evaluates F, f, log(1 − F) with ``numpy_ops``): at
+    legitimate arguments, the extremes included, they return ±inf and 0 where meant without
+    RuntimeWarnings (before: overflow in reciprocal's, Lévy's and the Gaussian's formulas at
+    |x| ≥ 1e154, division by zero in log(1 − F) where F = 1)."""
+    import warnings
+    x = np.array([-1e300, -1e200, -1e30, -40.5, -1.0, -1e-300, 0.0, 1e-300, 1.0, 40.5, 1e30, 1e200, 1e300])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        d.cdf(O, x), d.pdf(O, x), d.log_sf(O, x), d.cdf_and_log_sf(O, x), d.coverage(O, x, 0.5)
+        if d.has_odds:
+            d.odds(O, x), d.log_odds(O, x)
+
+
+@pytest.mark.parametrize("d", CASES, ids=ids)
+def test_limits_at_infinity(d):
+    """F(−inf) = 0, F(+inf) = 1 and log(1 − F(−inf)) = 0 exactly (an overflowed d/τ is ±inf):
+    gamma's upper regime read x = +inf as k·log x − x = inf − inf, F = NaN."""
+    F, log_sf = d.cdf_and_log_sf(O, np.array([-np.inf, np.inf]))
+    assert F[0] == 0.0 and F[1] == 1.0 and log_sf[0] == 0.0 and log_sf[1] < -40.0, (F, log_sf)
+    np.testing.assert_array_equal(d.cdf(O, np.array([-np.inf, np.inf])), [0.0, 1.0])
+
+
+@pytest.mark.parametrize("k", [0.5, 2.0, 3.0, 1.7])
+@pytest.mark.parametrize("rev", [False, True])
+def test_gamma_gradients_at_infinity_are_finite(k, rev):
+    torch = pytest.importorskip("torch")
+    from gendr_torch.ops import torch_ops
+    d = distribution("gamma", shape=k, reversed=rev)
+    for dtype in (torch.float32, torch.float64):
+        x = torch.tensor([-np.inf, -3e38, 3e38, np.inf], dtype=dtype, requires_grad=True)
+        F, log_sf = d.cdf_and_log_sf(torch_ops, x)
+        assert torch.equal(F.detach(), torch.tensor([0.0, 0.0, 1.0, 1.0], dtype=dtype))
+        (dF,) = torch.autograd.grad(F.sum(), x, retain_graph=True)
+        assert torch.all(dF == 0.0), dF
+        # d log(1 − F)/dx tends to −1 (plain: log Q ~ −x) or 0 (reversed): finite, not NaN
+        (dl,) = torch.autograd.grad(torch.where(torch.isfinite(log_sf), log_sf, 0.0).sum(), x)
+        assert torch.isfinite(dl).all(), dl

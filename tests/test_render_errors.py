@@ -467,3 +467,16 @@ def test_parameters_float32_cannot_hold_are_an_error(backend, dist, tcn, words):
     if "gamma" not in words:  # (gamma's continued fraction warns of a division by 0 at shape 1e39)
         alpha = r.to_numpy(r.render(V, F, CAM))[..., 3]
         assert np.isfinite(alpha).all() and alpha.min() >= 0.0 and alpha.max() <= 1.0
+
+
+@pytest.mark.parametrize("backend", _backends())
+@pytest.mark.parametrize("tau", [1e-39, 1e39])
+def test_tau_float32_cannot_hold_is_an_error(backend, tau):
+    """τ follows the parameters' rule: a float32 render refuses one outside float32's normal range
+    (a subnormal τ overflowed d/τ to +inf: reversed gamma(2) gave 111 NaN vertex gradients in a
+    16² torch render); float64 renders it."""
+    r = renderer(backend=backend, distribution=gendr.distribution("gamma", shape=2.0, reversed=True), tau=tau)
+    with pytest.raises(ParameterError, match=re.escape(f"tau={tau:g} is beyond what float32 holds")):
+        r.render(V.float(), F, CAM)
+    alpha = r.to_numpy(r.render(V, F, CAM))[..., 3]
+    assert np.isfinite(alpha).all() and alpha.min() >= 0.0 and alpha.max() <= 1.0

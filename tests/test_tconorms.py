@@ -632,3 +632,17 @@ def test_average_is_not_in_the_paper_grid():
     from gendr import paper_grid
     grid = paper_grid()
     assert len(grid) == 1242 and all(i.tconorm.name != "average" and i.tconorm.is_tconorm for i in grid)
+
+
+@_params(ALL)
+def test_numpy_evaluation_warns_of_nothing(t):
+    """A coverage of exactly 1 saturates strict T-conorms: their generators are +inf there by
+    design (log(1 − 1) = −inf), which NumPy evaluation returns without RuntimeWarnings."""
+    import warnings
+    p = np.array([0.0, 1e-300, 0.5, 1.0 - 1e-16, 1.0])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        t.binary(O, p, p[::-1])
+        t.aggregate(O, np.stack([p, p[::-1]]))
+        if t.kind == ARCHIMEDEAN:
+            t.generator_inverse(O, t.generator(O, p))
