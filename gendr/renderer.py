@@ -140,7 +140,7 @@ def _dtype_name(value) -> str:
     return str(dtype).rsplit(".", 1)[-1].lower()  # torch.int64, VarType.Int32 -> int64, int32
 
 
-def _check_params_fit(settings, dtype: str) -> None:
+def _check_params_fit(settings, dtype: str, tau_value: float) -> None:
     """ParameterError for τ or a distribution or T-conorm parameter (a number) that a float32 render
     cannot hold: beyond float32's range or below its smallest normal number in magnitude (frank
     p = 1e40 rendered alpha −inf, p = 1e-39 +inf; gamma shape = 1e300 raised torch's overflow;
@@ -154,7 +154,7 @@ def _check_params_fit(settings, dtype: str) -> None:
                 raise ParameterError(f"{owner} {setting.name!r} parameter {name}={value:g} is beyond what float32 "
                                      f"holds (normal numbers {info.tiny:.3g} ... {info.max:.3g} in magnitude): "
                                      f"render in float64 (float64 vertices)")
-    tau = settings.tau_value  # (a subnormal τ overflowed d/τ to inf: NaN gradients of gamma, torch)
+    tau = tau_value  # (a subnormal τ overflowed d/τ to inf: NaN gradients of gamma, torch)
     if not float(info.tiny) <= tau <= float(info.max):
         raise ParameterError(f"Renderer parameter tau={tau:g} is beyond what float32 holds (normal numbers "
                              f"{info.tiny:.3g} ... {info.max:.3g}): render in float64 (float64 vertices)")
@@ -179,6 +179,15 @@ def _scalar(t) -> float:
     elif hasattr(t, "numpy"):
         t = t.numpy().reshape(-1)[0]
     return float(t)
+
+
+def _tau_value(tau) -> float:
+    """The value of a tensor τ, re-checked (an optimizer may have moved it out of its domain): one
+    read of the device."""
+    v = _scalar(tau)
+    if not (math.isfinite(v) and v > 0):
+        raise ParameterError(f"Renderer parameter tau={tau!r} is out of domain: expected finite and > 0")
+    return v
 
 
 def _check_tau(tau):
@@ -457,9 +466,8 @@ class Renderer:
                 raise InputValueError(f"{name} must be finite; {name}{list(bad[0])} = {bad[1]}")
             colors, per_face = c, name == "face_colors"
         settings = self.settings
-        _check_params_fit(settings, _dtype_name(verts))
-        if not isinstance(settings.tau, float):  # a tensor τ: an optimizer may have moved it out of its domain
-            _check_tau(settings.tau)
+        tau_value = settings.tau if isinstance(settings.tau, float) else _tau_value(settings.tau)
+        _check_params_fit(settings, _dtype_name(verts), tau_value)
         if settings.tconorm.learnable or settings.distribution.learnable:  # re-read and re-check
             settings = replace(settings, tconorm=settings.tconorm.refreshed(),  # (an optimizer moves them)
                                distribution=settings.distribution.refreshed())

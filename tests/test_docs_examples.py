@@ -76,6 +76,15 @@ def test_docs_example_runs(rel, line, code, tmp_path, monkeypatch):
     _run(code, f"{rel}:{line}", _page_names())
 
 
+def test_every_fence_has_a_language_this_file_knows():
+    """Python blocks are found by their ```python fence, shell commands in the others: a ```py or
+    an indented fence would be skipped without notice."""
+    known = {"", "python", "bash", "toml", "json", "text"}
+    for rel in ["README.md", *DOCS]:
+        for m in re.finditer(r"^([ \t]*)```(\S*)", (ROOT / rel).read_text(), re.M):
+            assert m.group(1) == "" and m.group(2) in known, f"{rel}: fence {m.group(0)!r}"
+
+
 def test_not_run_lists_only_existing_blocks():
     listed = {(rel, code.splitlines()[0].strip()) for rel, _, code in ALL_BLOCKS}
     assert set(NOT_RUN) <= listed, set(NOT_RUN) - listed

@@ -145,3 +145,33 @@ def test_row_claims_compare_each_pair_of_rows_over_the_cells_both_have():
     assert gaps["Lévy worst"] == "reproduced"
     worse = _verdicts([dict(r, metric=r["metric"] + 0.05 * (r["instance"] // NT // 2 == g05)) for r in rows])
     assert worse["gamma(0.5) reversed best overall"] == "contradicted"
+
+
+def test_row_extreme_verdicts_on_small_matrices():
+    """``_row_extreme`` directly: any claimed row that beats every rival reproduces the claim (not
+    only the one with the largest lead, which here shares a cell with one rival only); a claim is
+    contradicted when every claimed row is clearly beaten, also by different rivals."""
+    from gendr_experiments.findings import _row_extreme
+    nan = np.nan
+    dl = ["A", "B", "R1", "R2"]
+    # rows x cells (one variant): A shares all 16 cells; B only the cells of R1 (and beats it by more)
+    M = np.full((1, 4, 16), nan)
+    M[0, 0] = 0.30
+    M[0, 1, :8] = 0.10
+    M[0, 2] = 0.40
+    M[0, 3, 8:] = 0.40
+    f = _row_extreme("best", M, dl, [0, 1], [2, 3], noise=0.03)
+    assert f.verdict == "reproduced" and f.detail.startswith("A 0.300 vs"), f
+    # every claimed row beaten beyond the margin, A by R1 and B by R2
+    M2 = np.full((1, 4, 16), nan)
+    M2[0, 0, :8], M2[0, 2, :8] = 0.3, 0.1
+    M2[0, 1, 8:], M2[0, 3, 8:] = 0.3, 0.1
+    f = _row_extreme("best", M2, dl, [0, 1], [2, 3], noise=0.03)
+    assert f.verdict == "contradicted", f
+    # the worst-row reading mirrors it
+    assert _row_extreme("worst", -M, dl, [0, 1], [2, 3], noise=0.03, worst=True).verdict == "reproduced"
+    # a rival without a shared cell keeps the claim open, and the detail names it
+    M3 = np.full((1, 4, 16), nan)
+    M3[0, 0, :8], M3[0, 2, :8], M3[0, 3, 8:] = 0.1, 0.4, 0.4
+    f = _row_extreme("best", M3, dl, [0], [2, 3], noise=0.03)
+    assert f.verdict == "within noise" and "not compared (no shared cells): R2" in f.detail, f

@@ -1,6 +1,7 @@
 """docs/architecture.md's claim: a new distribution or T-conorm is one registry entry and nothing
 else changes. Two families that gendr does not have are registered here exactly as that page shows
-(an asymmetric triangular distribution with a validated parameter, the Sugeno–Weber T-conorm) and
+(an asymmetric triangular distribution with a validated parameter, the Sugeno–Weber T-conorm; set
+into the registries as ``Registry.add`` would) and
 must then work everywhere a built-in one does: the spec calls, the culling radius, ``gendr list``,
 the torch fast path against the naive float64 reference and the Dr.Jit backend against torch
 (the tolerances of tests/test_renderer_reference.py and tests/test_drjit_parity.py), forward and
@@ -55,12 +56,11 @@ SUGENO_WEBER = TConormFamily(
 
 @pytest.fixture(scope="module", autouse=True)
 def registered():
-    DISTRIBUTIONS.add(TRIANGULAR)
-    TCONORMS.add(SUGENO_WEBER)
-    try:
+    with pytest.MonkeyPatch.context() as mp:  # each entry removed again, whatever fails
+        mp.setitem(DISTRIBUTIONS, TRIANGULAR.name, TRIANGULAR)
+        mp.setitem(TCONORMS, SUGENO_WEBER.name, SUGENO_WEBER)
         yield
-    finally:
-        del DISTRIBUTIONS[TRIANGULAR.name], TCONORMS[SUGENO_WEBER.name]
+    assert TRIANGULAR.name not in DISTRIBUTIONS and SUGENO_WEBER.name not in TCONORMS
 
 
 def test_the_spec_calls_validate_and_derive_the_culling_radius():

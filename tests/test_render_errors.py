@@ -329,15 +329,17 @@ def test_colour_and_texture_batches_must_be_one_or_the_render_batch(backend, kw,
 
 @pytest.mark.parametrize("backend", _backends())
 @pytest.mark.parametrize("value", [-0.01, 0.0, math.nan])
-def test_a_tensor_tau_is_checked_at_every_render(backend, value):
-    """An optimizer step may move a learnable τ out of its domain (it rendered garbage before)."""
-    tau = torch.tensor(0.01, dtype=torch.float64, requires_grad=True)
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_a_tensor_tau_is_checked_at_every_render(backend, value, dtype):
+    """An optimizer step may move a learnable τ out of its domain (it rendered garbage before); the
+    error names the domain, also in float32 (not float32's range, which float64 would not cure)."""
+    tau = torch.tensor(0.01, dtype=dtype, requires_grad=True)
     r = renderer(backend=backend, tau=tau)
-    r.render(V, F, CAM)
+    r.render(V.to(dtype), F, CAM)
     with torch.no_grad():
         tau.fill_(value)
-    with pytest.raises(ParameterError, match="tau=tensor"):
-        r.render(V, F, CAM)
+    with pytest.raises(ParameterError, match="tau=tensor.* is out of domain: expected finite and > 0"):
+        r.render(V.to(dtype), F, CAM)
 
 
 @pytest.mark.parametrize("make,name", [

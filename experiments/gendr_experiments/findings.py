@@ -67,8 +67,9 @@ def _row_extreme(claim, M, dl, group, rivals, noise, worst=False):
     row of ``rivals``? Each pair of rows is compared over the cells (variant, T-conorm column) both
     have run, with the margin ``noise / sqrt(paired cells)``: row means over different cells are not
     like with like while the sweep is partial (a row run in the poor columns looks worse).
-    reproduced: a group row is ahead of every rival beyond the margin; contradicted: a rival is
-    ahead of every group row beyond it; else within noise. Differences are signed so that positive
+    reproduced: some group row is ahead of every rival beyond the margin; contradicted: every group
+    row has some rival ahead of it beyond the margin; else within noise (a rival that shares no cell
+    with a group row keeps that row from "reproduced"). Differences are signed so that positive
     supports the claim."""
     sign = -1.0 if worst else 1.0
     pairs = {}
@@ -88,17 +89,26 @@ def _row_extreme(claim, M, dl, group, rivals, noise, worst=False):
         return f"{dl[x]} {mx:.3f} vs {dl[s]} {ms:.3f} over {n} paired cells (difference {gain:+.3f}, margin {margin:.3f})"
     # each group row's closest rival among those it shares cells with
     closest = {x: min((s for s in ss if (x, s) in pairs), key=lambda s: pairs[x, s][0]) for x in xs}
+
+    def ahead(x, s):  # x ahead of s beyond the margin (+1), behind it beyond the margin (−1), else 0
+        gain, margin = pairs[x, s][:2]
+        return 1 if gain > margin else -1 if gain < -margin else 0
+    winners = [x for x in xs if all((x, s) in pairs and ahead(x, s) == 1 for s in ss)]
+    if winners:
+        x = max(winners, key=lambda x: pairs[x, closest[x]][0])
+        return Finding(claim, "reproduced", f"{text(x, closest[x])}: the closest rival; each pair over the cells "
+                                            f"both rows have run")
+    beaten = {x: [s for s in ss if (x, s) in pairs and ahead(x, s) == -1] for x in xs}
     lead = max(xs, key=lambda x: pairs[x, closest[x]][0])
-    if all((lead, s) in pairs and pairs[lead, s][0] > pairs[lead, s][1] for s in ss):
-        return Finding(claim, "reproduced", f"{text(lead, closest[lead])}: the closest rival; each pair over the "
-                                            f"cells both rows have run")
-    for s in ss:
-        if all((x, s) in pairs and pairs[x, s][0] < -pairs[x, s][1] for x in xs):
-            x = max(xs, key=lambda x: pairs[x, s][0])
-            return Finding(claim, "contradicted", f"{dl[s]} is {'worse' if worst else 'better'} than every claimed row beyond "
-                                                      f"the margin; closest: {text(x, s)}")
+    if all(beaten.values()):  # every claimed row has a rival clearly ahead of it: none is the extreme
+        s = min(beaten[lead], key=lambda s: pairs[lead, s][0])
+        return Finding(claim, "contradicted", f"every claimed row has a rival {'worse' if worst else 'better'} than "
+                                              f"it beyond the margin ({len(beaten[lead])} for {dl[lead]}, the claimed "
+                                              f"row closest to the claim; the clearest: {text(lead, s)})")
+    unpaired = [dl[s] for s in ss if (lead, s) not in pairs]
     return Finding(claim, "within noise", f"{text(lead, closest[lead])}: the closest rival of the leading claimed "
-                                          f"row; each pair over the cells both rows have run")
+                                          f"row; each pair over the cells both rows have run"
+                                          + (f"; not compared (no shared cells): {', '.join(unpaired)}" if unpaired else ""))
 
 
 def shape_findings(rows, noise: float = 0.03) -> list[Finding]:
