@@ -467,10 +467,10 @@ class Renderer:
             colors, per_face = c, name == "face_colors"
         settings = self.settings
         tau_value = settings.tau if isinstance(settings.tau, float) else _tau_value(settings.tau)
-        _check_params_fit(settings, _dtype_name(verts), tau_value)
         if settings.tconorm.learnable or settings.distribution.learnable:  # re-read and re-check
             settings = replace(settings, tconorm=settings.tconorm.refreshed(),  # (an optimizer moves them)
                                distribution=settings.distribution.refreshed())
+        _check_params_fit(settings, _dtype_name(verts), tau_value)  # (the values this render uses)
         if tex is not None:
             return be.render(settings, verts, faces_a, camera, colors, per_face, texture=tex)
         return be.render(settings, verts, faces_a, camera, colors, per_face)

@@ -482,3 +482,17 @@ def test_tau_float32_cannot_hold_is_an_error(backend, tau):
         r.render(V.float(), F, CAM)
     alpha = r.to_numpy(r.render(V, F, CAM))[..., 3]
     assert np.isfinite(alpha).all() and alpha.min() >= 0.0 and alpha.max() <= 1.0
+
+
+@pytest.mark.parametrize("backend", _backends())
+def test_a_learnable_parameter_float32_cannot_hold_is_an_error(backend):
+    """The float32 range check reads a learnable parameter's current value: an optimizer step that
+    moved frank's p to 1e-39 rendered alpha up to +inf in float32 (the check read the value of the
+    previous render)."""
+    p = torch.tensor(2.0, requires_grad=True)
+    r = renderer(backend=backend, tconorm=gendr.tconorm("frank", p=p), tau=0.3)
+    r.render(V.float(), F, CAM)
+    with torch.no_grad():
+        p.fill_(1e-39)
+    with pytest.raises(ParameterError, match=re.escape("tconorm 'frank' parameter p=1e-39 is beyond what float32")):
+        r.render(V.float(), F, CAM)
