@@ -1,0 +1,67 @@
+"""The benchmark scripts the docs quote run end to end and write the fields they document (smoke
+tests with one repeat: not timing tests). bench_step.py and ab_drjit.py have their own files."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+BENCH = Path(__file__).resolve().parent.parent / "benchmarks"
+
+
+def _run(script, *args, timeout=300):
+    res = subprocess.run([sys.executable, str(BENCH / script), *map(str, args)], capture_output=True, text=True,
+                         timeout=timeout)
+    assert res.returncode == 0, res.stderr[-2000:]
+    return res.stdout
+
+
+def _check_timing(t, repeats=1):
+    assert t["repeats"] == repeats and t["min_ms"] <= t["median_ms"] <= t["max_ms"] and t["stdev_ms"] >= 0
+    assert t["peak_extra_mb"] >= 0
+
+
+def test_bench_render_torch_and_drjit_render_the_same_scene(tmp_path):
+    rows = {}
+    for backend, extra in (("torch", ()), ("drjit", ("--no-freeze",))):
+        out = tmp_path / f"{backend}.json"
+        _run("bench_render.py", "--backend", backend, "--repeats", 1, "--threads", 1, *extra, "--out", out)
+        data = json.loads(out.read_text())
+        assert {"cpu", "cores", "git_commit", "numpy", "gendr"} <= set(data["machine"])
+        (row,) = data["results"]
+        assert (row["case"], row["backend"], row["faces"], row["image_size"]) == ("default", backend, 1280, 256)
+        assert backend in row["versions"]  # the array library's version
+        for mode in ("forward", "forward_backward"):
+            _check_timing(row[mode])
+        rows[backend] = row
+    drjit = rows["drjit"]
+    assert drjit["forward"]["first_call_cold_ms"] > 0 and drjit["optimization_loop"]["median_ms"] > 0
+    assert drjit["optimization_loop"]["kernels_compiled_tau_changes"] == 0  # τ is opaque: no recompilation
+    # the same scene: alpha sums agree to float32 rounding (measured 3e-7 relative)
+    assert abs(rows["torch"]["alpha_sum"] - drjit["alpha_sum"]) <= 1e-5 * rows["torch"]["alpha_sum"]
+
+
+def test_ab_render_prints_the_version_it_ran():
+    line = _run("ab_render.py", "render", 32, 1, 2).strip().splitlines()[-1]
+    assert "gendr_drjit" in line and "fwd_bwd_ms" in line
+
+
+def test_ab_raster_against_a_copy_of_itself(tmp_path):
+    other = tmp_path / "raster_copy.py"
+    other.write_text((BENCH.parent / "backends" / "gendr_torch" / "raster.py").read_text())
+    out = _run("ab_raster.py", other, "--n", 1, "--size", 32)
+    assert "other: wall median" in out and "this: wall median" in out
+
+
+@pytest.mark.slow
+def test_cutoff_effect(tmp_path):
+    out = tmp_path / "cutoff.json"
+    _run("cutoff_effect.py", "--repeats", 1, "--out", out, timeout=900)
+    data = json.loads(out.read_text())
+    assert data["repeats"] == 1 and len(data["rows"]) >= 2
+    for row in data["rows"]:
+        assert row["cutoff"] == 100.0 and 0 <= row["mean_abs_alpha_change"] <= row["max_abs_alpha_change"] <= 1
+        assert row["fwd_bwd_ms_exact"] > 0 and row["fwd_bwd_ms_cutoff"] > 0
