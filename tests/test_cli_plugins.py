@@ -183,3 +183,17 @@ def test_validate_without_its_extra_says_what_to_install(monkeypatch, tmp_path, 
     monkeypatch.setitem(sys.modules, "tqdm", None)  # as if the validation extra were not installed
     assert cli.main(["validate", "-o", str(tmp_path / "r")]) == 2
     assert "gendr validate needs the validation extra (pip install gendr[validation])" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_the_committed_gallery_regenerates_pixel_for_pixel(tmp_path):
+    """docs/gallery/*.png are results the docs show: `gendr gallery -o docs/gallery` must rebuild
+    them from the code at hand (they matched exactly at 106d681; ~20 s)."""
+    np = pytest.importorskip("numpy")
+    Image = pytest.importorskip("PIL.Image")
+    assert cli.main(["gallery", "-o", str(tmp_path)]) == 0
+    committed = sorted((Path(__file__).resolve().parent.parent / "docs" / "gallery").glob("*.png"))
+    assert committed and sorted(p.name for p in tmp_path.glob("*.png")) == [p.name for p in committed]
+    for p in committed:
+        np.testing.assert_array_equal(np.asarray(Image.open(tmp_path / p.name)), np.asarray(Image.open(p)),
+                                      err_msg=p.name)
