@@ -93,9 +93,10 @@ def run_fresh(script, args, cold=False):
     import tempfile
     with tempfile.TemporaryDirectory(prefix="gendr-bench-home-") as home:
         env = dict(os.environ, HOME=home, TORCHINDUCTOR_CACHE_DIR=os.path.join(home, "inductor")) if cold else None
-        out = subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True, check=True,
-                             env=env).stdout
-    return json.loads(out.strip().splitlines()[-1])
+        res = subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True, env=env)
+    if res.returncode != 0 or not res.stdout.strip():  # say why (check=True would drop the child's stderr)
+        raise RuntimeError(f"{script} {' '.join(map(str, args))} exited {res.returncode}: {res.stderr[-2000:]}")
+    return json.loads(res.stdout.strip().splitlines()[-1])
 
 
 def probe(backend, name, mode, threads, cold=False, device="cpu"):
