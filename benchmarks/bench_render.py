@@ -10,7 +10,8 @@
 
 With ``--backend drjit`` the inputs are Dr.Jit tensors (LLVM on CPU, float32) and each call ends with
 ``dr.sync_thread()`` (launches are asynchronous). Extra fields: ``first_call_cold_ms`` (first call
-in a fresh process with an empty Dr.Jit kernel cache: tracing + LLVM compilation), per-call kernel
+in a fresh process with an empty Dr.Jit kernel cache: tracing + LLVM compilation;
+``first_call_cold_kernels_compiled``, the kernels it wrote to that cache, shows it was empty), per-call kernel
 statistics from Dr.Jit's kernel history (kernels launched, kernels compiled = cache misses, summed
 kernel execution time), and ``optimization_loop``: 100 forward+backward steps on changing vertices
 (a training loop; wall times and kernels compiled), then 5 renders with different τ
@@ -280,7 +281,10 @@ def run_case(backend, name, repeats, threads, freeze=True, device="cpu"):
         if device == "cpu":
             out[label]["peak_extra_mb"] = peak_extra_mb(backend, name, label, threads)
         if backend in ("drjit", "torch-compiled"):
-            out[label]["first_call_cold_ms"] = probe(backend, name, label, threads, True, device)["first_call_ms"]
+            cold = probe(backend, name, label, threads, True, device)
+            out[label]["first_call_cold_ms"] = cold["first_call_ms"]
+            if backend == "drjit":  # > 0: the call compiled its kernels, the cache was cold
+                out[label]["first_call_cold_kernels_compiled"] = cold["drjit_kernels_cached"]
         if backend == "drjit":
             out[label] |= kernel_stats(fn)
     if backend == "drjit":
@@ -326,7 +330,11 @@ def main(argv=None):
         t0 = time.perf_counter()
         modes[a.memory_probe[1]]()
         dt = time.perf_counter() - t0
-        print(json.dumps({"peak_extra_mb": (_status_kb("VmHWM") - rss0) / 1024.0, "first_call_ms": 1000.0 * dt}))
+        # kernels this call compiled and wrote to Dr.Jit's disk cache (a cold probe's HOME starts empty)
+        cache = Path.home() / ".drjit"
+        cached = sum(1 for f in cache.glob("*.bin")) if cache.is_dir() else 0
+        print(json.dumps({"peak_extra_mb": (_status_kb("VmHWM") - rss0) / 1024.0, "first_call_ms": 1000.0 * dt,
+                          "drjit_kernels_cached": cached}))
         return 0
     result = {"machine": machine(), "results": [run_case(a.backend, c, a.repeats, a.threads, not a.no_freeze, a.device)
                                                 for c in (a.case or ["default"])]}

@@ -41,6 +41,9 @@ def test_bench_render_torch_and_drjit_render_the_same_scene(tmp_path):
         rows[backend] = row
     drjit = rows["drjit"]
     assert drjit["forward"]["first_call_cold_ms"] > 0 and drjit["optimization_loop"]["median_ms"] > 0
+    # the "cold" first calls compiled their kernels: their cache really was empty
+    assert drjit["forward"]["first_call_cold_kernels_compiled"] > 0
+    assert drjit["forward_backward"]["first_call_cold_kernels_compiled"] > 0
     assert drjit["optimization_loop"]["kernels_compiled_tau_changes"] == 0  # τ is opaque: no recompilation
     # the same scene: alpha sums agree to float32 rounding (measured 3e-7 relative)
     assert abs(rows["torch"]["alpha_sum"] - drjit["alpha_sum"]) <= 1e-5 * rows["torch"]["alpha_sum"]
