@@ -843,6 +843,7 @@ def _gamma_parts(ops, x, k, shape_derivatives=False):
     and less work in the renderer's loops; a learnable k that sits on an integer too, so that its
     image equals the float's; its ∂/∂k keeps the fraction's term-by-term derivative).
     """
+    x = _finite_gamma_x(ops, x)  # (once, before the regimes: the upper ones would read inf − inf)
     sw = k + _GAMMA_SWITCH
     use_series = x < sw
     # log of x^k e^(−x) / Γ(k+1), as k·log(x/k) − (x − k) − c with c a float64 constant
@@ -866,7 +867,7 @@ def _gamma_parts(ops, x, k, shape_derivatives=False):
 
     def fraction(x):  # Legendre's, bottom-up from depth _GAMMA_CF_DEPTH:
         # Q = x^k e^(−x) / Γ(k) / t,  t = x+1−k − 1(1−k)/(x+3−k − 2(2−k)/(x+5−k − ...))
-        xc = ops.where(use_series, sw, _finite_gamma_x(ops, x))
+        xc = ops.where(use_series, sw, x)
         t = xc + (2.0 * _GAMMA_CF_DEPTH + 1.0 - k)
         dt = ops.full_like(xc, -1.0) if shape_derivatives else None
         for n in range(_GAMMA_CF_DEPTH, 0, -1):
@@ -879,7 +880,7 @@ def _gamma_parts(ops, x, k, shape_derivatives=False):
 
     def finite_sum(x):  # integer k: Q = e^(−x) Σ_{n<k} x^n/n! exactly, positive terms (no fraction);
         # t = x^k / ((k−1)!·Σ) is the fraction's t, so the derivatives read it alike (−t/x)
-        xc = ops.where(use_series, sw, _finite_gamma_x(ops, x))
+        xc = ops.where(use_series, sw, x)
         big = xc > _GAMMA_SUM_MAX
         xs = ops.where(big, _GAMMA_SUM_MAX, xc)
         total = ops.full_like(xs, 1.0)

@@ -154,9 +154,9 @@ def _check_params_fit(settings, dtype: str, tau_value: float) -> None:
                 raise ParameterError(f"{owner} {setting.name!r} parameter {name}={value:g} is beyond what float32 "
                                      f"holds (normal numbers {info.tiny:.3g} ... {info.max:.3g} in magnitude): "
                                      f"render in float64 (float64 vertices)")
-    tau = tau_value  # (a subnormal τ overflowed d/τ to inf: NaN gradients of gamma, torch)
-    if not float(info.tiny) <= tau <= float(info.max):
-        raise ParameterError(f"Renderer parameter tau={tau:g} is beyond what float32 holds (normal numbers "
+    # (a subnormal τ overflowed d/τ to inf: NaN gradients of gamma, torch)
+    if not float(info.tiny) <= tau_value <= float(info.max):
+        raise ParameterError(f"Renderer parameter tau={tau_value:g} is beyond what float32 holds (normal numbers "
                              f"{info.tiny:.3g} ... {info.max:.3g}): render in float64 (float64 vertices)")
     shift = settings.distribution.shift
     if isinstance(shift, numbers.Real) and not abs(shift) <= float(info.max):
@@ -181,12 +181,13 @@ def _scalar(t) -> float:
     return float(t)
 
 
-def _tau_value(tau) -> float:
-    """The value of a tensor τ, re-checked (an optimizer may have moved it out of its domain): one
-    read of the device."""
+def _tau_value(tau, shown=None) -> float:
+    """The value of τ (a tensor: one read of the device), checked against its domain (an optimizer
+    may have moved a tensor τ out of it); ``shown``: what the error names (default ``tau``)."""
     v = _scalar(tau)
     if not (math.isfinite(v) and v > 0):
-        raise ParameterError(f"Renderer parameter tau={tau!r} is out of domain: expected finite and > 0")
+        raise ParameterError(f"Renderer parameter tau={tau if shown is None else shown!r} is out of domain: "
+                             f"expected finite and > 0")
     return v
 
 
@@ -207,8 +208,7 @@ def _check_tau(tau):
         v = _scalar(tau)
     except (TypeError, ValueError):
         raise ParameterError(f"Renderer parameter tau={tau!r} must be a number > 0") from None
-    if not (math.isfinite(v) and v > 0):
-        raise ParameterError(f"Renderer parameter tau={raw!r} is out of domain: expected finite and > 0")
+    _tau_value(v, shown=raw)  # (the domain check; v is a float: no second read)
     return tau
 
 
