@@ -57,7 +57,7 @@ def test_fit_recovers_a_known_model():
 
 def test_study_run_counts():
     def count(name, insts):
-        return sum(n for _, n in protocol_runs(name, instances=insts))
+        return len(list(protocol_runs(name, instances=insts)))
     assert count("shape-reduced", [0]) == 3 + 2               # 3 coarse τ, best·10^±0.5
     assert count("shape-paper", [0]) == 5 * (3 * 7 + 20)      # 5 elevations × (3 lr × 7 τ + 20 new fine τ)
     assert count("pose-paper", [0]) == 3 * 2                  # 3 bins × 2 lr, 200 pairs each
@@ -116,3 +116,47 @@ def test_the_full_protocol_commands_are_the_studies_the_model_counts(tmp_path):
     (p,) = parsed("pose-full")
     assert (p.experiment, p.instances, p.no_refine, p.set) == ("pose", "all", True, ["pairs=200"])
     assert _floats(p.lrs) == [0.1, 0.3] and len(p.bins.split(",")) == 3
+
+
+def _row(cfg, metric, status="ok"):
+    from gendr_experiments.common import instance_from_config
+    from gendr_experiments.sweep import config_hash
+    return {"key": config_hash(cfg), "status": status, "experiment": cfg["experiment"], "instance": cfg.get("instance"),
+            "label": instance_from_config(cfg)[2], "tau": cfg.get("tau"), "lr": cfg["lr"], "metric": metric,
+            "seconds": 1.0, "config": cfg}
+
+
+def test_runs_left_follows_the_sweeps_search():
+    """The runs a study still lacks: coarse runs without a finished row; the fine stage around the best
+    coarse τ once a search's coarse rows have all finished (else around 0.01, as protocol_runs)."""
+    from gendr_experiments.cost import runs_left
+    coarse = [c for c in protocol_runs("shape-reduced", instances=[0, 5]) if c["tau"] in (0.003, 0.01, 0.03)]
+    assert len(coarse) == 6
+    metric = {0.003: 0.2, 0.01: 0.3, 0.03: 0.4}
+    rows = [_row(c, metric[c["tau"]]) for c in coarse if not (c["instance"] == 5 and c["tau"] == 0.03)]
+    rows.append(_row(next(c for c in coarse if c["instance"] == 5 and c["tau"] == 0.03), None, status="error"))
+    left = sorted((c["instance"], c["tau"]) for c in runs_left("shape-reduced", rows, instances=[0, 5]))
+    # instance 0: fine stage at 0.003·10^±0.25; instance 5: its errored coarse run, fine stage at 0.01·10^±0.25
+    assert left == [(0, 0.00168702), (0, 0.00533484), (5, 0.00562341), (5, 0.0177828), (5, 0.03)]
+    # a finished fine run is not left; every run is left without rows
+    fine = next(c for c in runs_left("shape-reduced", rows, instances=[0, 5]) if c["instance"] == 0)
+    assert len(list(runs_left("shape-reduced", rows + [_row(fine, 0.1)], instances=[0, 5]))) == 4
+    assert len(list(runs_left("shape-reduced", [], instances=[0, 5]))) == 10
+    assert len(list(runs_left("pose-paper", [], instances=[3]))) == 6
+
+
+@pytest.mark.parametrize("study, name", [("shape-reduced", "paper_shape_grid"), ("pose-reduced", "paper_pose_grid")])
+def test_study_configs_are_the_keys_the_sweep_wrote(study, name):
+    """runs_left matches rows by key: the study's configs must hash like those paper_grid.sh's sweeps
+    ran (the committed rows; the shape file also holds 43 instances' rows of a first pass at widths
+    0.1, 0.01, 0.001 outside the study)."""
+    from gendr_experiments.cost import runs_left
+    from gendr_experiments.sweep import load_rows
+    rows = [r for r in load_rows(RESULTS / f"{name}.jsonl") if r["status"] == "ok"]
+    left = {json.dumps(c, sort_keys=True) for c in runs_left(study, rows)}
+    expected = {json.dumps(c, sort_keys=True) for c in protocol_runs(study)}  # fine stages at 0.01
+    study_rows = [r for r in rows if r.get("tau") not in (0.1, 0.001)]
+    assert len(study_rows) > 200
+    total = len(list(runs_left(study, [])))
+    assert total == len(expected) == (6440 if study == "shape-reduced" else 345)
+    assert total - len(left) == len(study_rows)  # every committed row of the study is one of its runs

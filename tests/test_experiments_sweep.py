@@ -1,5 +1,6 @@
 """gendr_experiments.sweep: rows on disk, resume, the best-setting search, pool == Dask LocalCluster."""
 import json
+import math
 
 import pytest
 import torch
@@ -81,6 +82,13 @@ def test_best_setting_search_refines_tau(tmp_path):
     assert set(fine_grid(coarse_best, (-0.25, 0.25))) <= set(taus)
     assert best[5]["score"] == min(r["metric"] for r in rows)
     assert summarize_best(rows) == best
+
+
+def test_fine_grid_step_zero_is_the_coarse_tau_itself():
+    """A fine grid with step 0 (the paper's: 21 steps from -1 to 1) must name the coarse run's τ exactly,
+    not a 6-digit rounding of it: squared widths such as sqrt(0.1) would otherwise rerun as new keys."""
+    width = math.sqrt(0.1)
+    assert fine_grid(width, (-0.05, 0.0, 0.05)) == [0.281838, width, 0.354813]
 
 
 def test_pool_and_dask_localcluster_give_identical_metrics(tmp_path):

@@ -505,7 +505,7 @@ def cmd_cost(a) -> int:
         print(f"{PROG}: error: unknown studies {bad}; known: {', '.join(STUDIES)}", file=sys.stderr)
         return 2
     held = _results(a.holdout)
-    report = cost_report(rows, studies=studies, hours=a.hours, efficiency=a.efficiency, holdout=held)
+    report = cost_report(rows, studies=studies, hours=a.hours, efficiency=a.efficiency, holdout=held, left=a.left)
     print(format_report(report))
     if a.json:
         Path(a.json).write_text(json.dumps(report, indent=1))
@@ -692,6 +692,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "pose-reduced (paper_grid.sh pose)")
     p.add_argument("--holdout", nargs="+", default=None, metavar="FILE",
                    help="rows NOT to fit: printed as measured vs predicted (experiments/cost_timing.py --holdout)")
+    p.add_argument("--left", action="store_true",
+                   help="also predict the runs of each study that the rows lack (a sweep's progress: pass its "
+                        "rows; a fine stage centres on its search's best coarse row once those have finished, "
+                        "else on tau 0.01)")
     p.add_argument("--hours", type=float, default=24.0, help="wall-clock time the cluster size is given for")
     p.add_argument("--efficiency", type=float, default=0.9, help="fraction of the cores kept busy")
     p.add_argument("--data", default=None, metavar="DIR", help="directory of the paper's files (paper:FILE)")

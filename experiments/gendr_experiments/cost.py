@@ -278,52 +278,48 @@ def fit_cost_model(rows, *, prior_weight: float = 0.3, k_from: CostModel | None 
 # protocols: which runs, how many
 # ------------------------------------------------------------------------------------------------
 
-def protocol_runs(name: str, *, best_tau=None, instances=None):
-    """Yield ``(config, count)`` of the runs of a named study (counts multiply configs that differ
-    only in what does not change the cost: learning rate, seed):
+@dataclass
+class _Search:
+    """One search of a study, as ``gendr experiment sweep`` runs it: the coarse runs, then (where
+    ``fine_bases``) a fine τ stage at ``fine_steps`` decades around the coarse τ and lr of the lowest
+    mean metric (over the elevations), run at each base config (one per elevation)."""
 
-    * ``shape-paper``: the paper's search, every instance: 5 elevations × 3 lr × 7 τ, then at the best
-      lr 21 τ at 0.1-decade steps around the best τ (20 new; the best is a coarse run), per elevation;
-    * ``shape-reduced``: ``experiments/paper_grid.sh shape``: the 1,242 and "average" with each of the
-      46 distribution settings, elevation 30, lr 10^-1.5, τ 0.003, 0.01, 0.03, then best·10^±0.25;
-    * ``pose-paper``: every instance, 3 bins × 200 pairs (one run per bin) × lr {0.1, 0.3}, 1,000 steps;
-    * ``pose-reduced``: ``experiments/paper_grid.sh pose``: 23 plain distributions × 5 T-conorms,
-      3 bins × 17 pairs, lr 0.3.
+    key: object            # the instance's grid index, else its label (best_tau's key)
+    coarse: list           # full run configs
+    fine_bases: list = field(default_factory=list)
+    fine_steps: tuple = ()
 
-    ``best_tau``: instance (grid index, else label) -> the best coarse τ the fine stage centres on
-    (default 0.01); ``instances``: grid indices or config dicts outside the grid (default: the study's)."""
+
+#: the pose bins of the paper (and of paper_grid.sh pose)
+PAPER_BINS = ((15.0, 35.0), (35.0, 55.0), (55.0, 75.0))
+
+
+def _searches(name: str, instances=None):
     from .common import grid_instance
-    from .sweep import fine_grid, full_config
+    from .sweep import full_config
     if name not in STUDIES:
         raise ParameterError(f"unknown study {name!r}; known: {', '.join(STUDIES)}")
-    best_tau = {} if best_tau is None else best_tau
+    full = name.endswith("-paper")
     if name.startswith("shape"):
-        full = name == "shape-paper"
         insts = list(range(1242)) if instances is None else instances
         if instances is None and not full:
             from gendr.grid import DISTRIBUTION_SETTINGS
             insts += [{"distribution": {"name": n, "reversed": rev, "squared": sq, **params}, "tconorm": "average"}
                       for n, params, rev in DISTRIBUTION_SETTINGS for sq in (False, True)]
-        elevations = PAPER_ELEVATIONS if full else (30.0,)
-        n_lr = 3 if full else 1
         for inst in insts:
             spec = dict(inst) if isinstance(inst, dict) else {"instance": int(inst)}
             key = _families(spec)[2] if isinstance(inst, dict) else int(inst)
-            t_best = best_tau.get(key, 0.01)
             squared = spec["distribution"]["squared"] if isinstance(inst, dict) else grid_instance(int(inst)).distribution.squared
             if full:
                 taus, fine = ((PAPER_TAUS_SQUARED, PAPER_FINE_STEPS_SQUARED) if squared else (PAPER_TAUS, PAPER_FINE_STEPS))
             else:
                 taus, fine = REDUCED_TAUS, REDUCED_FINE_STEPS
-            fine = [s for s in fine if s != 0]
-            for el in elevations:
-                base = full_config("shape", {"protocol": "paper", "elevation": el, **spec})
-                for t in taus:
-                    yield dict(base, tau=t), n_lr
-                for t in fine_grid(t_best, fine):
-                    yield dict(base, tau=t), 1
+            lrs = PAPER_LRS if full else (10 ** -1.5,)
+            bases = [full_config("shape", {"protocol": "paper", "elevation": el, **spec})
+                     for el in (PAPER_ELEVATIONS if full else (30.0,))]
+            yield _Search(key, [dict(b, tau=t, lr=lr) for b in bases for t in taus for lr in lrs], bases,
+                          tuple(s for s in fine if s != 0))  # step 0 is the best coarse run
     else:
-        full = name == "pose-paper"
         if instances is None:
             five = ("max", "probabilistic", "einstein", "yager(p=2)", "dombi(p=0.5)")
             insts = range(1242) if full else [i for i in range(1242) if not grid_instance(i).distribution.squared
@@ -331,18 +327,64 @@ def protocol_runs(name: str, *, best_tau=None, instances=None):
         else:
             insts = instances
         for inst in insts:
-            cfg = full_config("pose", {"protocol": "paper", "instance": int(inst), "pairs": 200 if full else 17})
-            yield cfg, 3 * (2 if full else 1)  # the bins scale one draw: the same footprint
+            base = full_config("pose", {"protocol": "paper", "instance": int(inst), "pairs": 200 if full else 17})
+            yield _Search(int(inst), [dict(base, angle_min=a, angle_max=b, lr=lr) for a, b in PAPER_BINS
+                                      for lr in ((0.1, 0.3) if full else (0.3,))])
 
 
-def protocol_cost(model: CostModel, name: str, **kw) -> dict:
+def protocol_runs(name: str, *, best_tau=None, instances=None):
+    """Yield the config of every run of a named study (the keys match the rows its sweep writes):
+
+    * ``shape-paper``: the paper's search, every instance: 5 elevations × 3 lr × 7 τ, then at the best
+      lr 21 τ at 0.1-decade steps around the best τ (20 new; the best is a coarse run) at each
+      elevation (the best: of the mean over the elevations, as ``--elevations`` has it);
+    * ``shape-reduced``: ``experiments/paper_grid.sh shape``: the 1,242 and "average" with each of the
+      46 distribution settings, elevation 30, lr 10^-1.5, τ 0.003, 0.01, 0.03, then best·10^±0.25;
+    * ``pose-paper``: every instance, 3 bins × 200 pairs (one run per bin) × lr {0.1, 0.3}, 1,000 steps;
+    * ``pose-reduced``: ``experiments/paper_grid.sh pose``: 23 plain distributions × 5 T-conorms,
+      3 bins × 17 pairs, lr 0.3.
+
+    ``best_tau``: instance (grid index, else label) -> the best coarse τ the fine stage centres on
+    (default 0.01; the fine stage runs at lr 10^-1.5); ``instances``: grid indices or config dicts
+    outside the grid (default: the study's)."""
+    best_tau = {} if best_tau is None else best_tau
+    for s in _searches(name, instances):
+        yield from s.coarse
+        yield from _fine(s, best_tau.get(s.key, 0.01), 10 ** -1.5)
+
+
+def _fine(search, tau, lr):
+    from .sweep import fine_grid
+    return [dict(b, tau=t, lr=lr) for b in search.fine_bases for t in fine_grid(tau, search.fine_steps)]
+
+
+def runs_left(name: str, rows, *, instances=None):
+    """The configs of the runs of study ``name`` (:func:`protocol_runs`) that ``rows`` do not hold
+    finished (``status`` ok; matched by key): a sweep's progress. A fine stage centres, as the sweep's
+    does, on the best τ and lr of its search's coarse rows once they have all finished, else on τ 0.01."""
+    from .sweep import config_hash, summarize_best
+    done = {r["key"]: r for r in rows if r.get("status") == "ok"}
+    for s in _searches(name, instances):
+        found = [done.get(config_hash(c)) for c in s.coarse]
+        yield from (c for c, r in zip(s.coarse, found) if r is None)
+        if not s.fine_bases:
+            continue
+        tau, lr = 0.01, 10 ** -1.5
+        if all(found):
+            (best,) = summarize_best(found, "shape").values()
+            tau, lr = best["tau"], best["lr"]
+        yield from (c for c in _fine(s, tau, lr) if config_hash(c) not in done)
+
+
+def protocol_cost(model: CostModel, name: str, *, rows=None, **kw) -> dict:
     """Predicted ``runs``, ``cpu_hours`` and the most expensive single run of a study
-    (:func:`protocol_runs`) under ``model``."""
+    (:func:`protocol_runs`) under ``model``; with ``rows``, of the runs they lack (:func:`runs_left`)."""
     runs, total, worst = 0, 0.0, 0.0
-    for cfg, n in protocol_runs(name, **kw):
+    cfgs = protocol_runs(name, **kw) if rows is None else runs_left(name, rows, instances=kw.get("instances"))
+    for cfg in cfgs:
         s = model.predict(cfg)
-        runs += n
-        total += n * s
+        runs += 1
+        total += s
         worst = max(worst, s)
     return {"study": name, "runs": runs, "cpu_hours": total / 3600.0, "longest_run_s": worst}
 
@@ -375,14 +417,16 @@ def best_coarse_tau(rows) -> dict:
     return {i: b["tau"] for i, b in summarize_best(rows, "shape").items()}  # grid index, else label
 
 
-def cost_report(rows, *, studies=STUDIES, hours: float = 24.0, efficiency: float = 0.9, holdout=()) -> dict:
+def cost_report(rows, *, studies=STUDIES, hours: float = 24.0, efficiency: float = 0.9, holdout=(),
+                left: bool = False) -> dict:
     """Fit one :class:`CostModel` per (experiment, protocol) of ``rows`` and predict ``studies``
     (:func:`protocol_runs`) with the ``paper`` models. Returns a dict: ``models`` (each with its fit
     quality and, where wall-only rows of the same protocol exist, ``wall_over_model``: their median
     measured wall seconds / predicted CPU seconds), ``table`` (shape-paper seconds per run by
     distribution, variant and τ), ``studies`` (runs, CPU-hours with the fine stage centred on the
     measured best τ or 0.01, and on 0.1 / 0.001 for every instance, cores for a run of ``hours``
-    at ``efficiency``), ``holdout`` (rows not fitted, each measured against its model's prediction)."""
+    at ``efficiency``; with ``left``, also ``left``: the runs and CPU-hours of the study that ``rows``
+    lack, :func:`runs_left`), ``holdout`` (rows not fitted, each measured against its model's prediction)."""
     from .figures import grid_labels
     from .sweep import full_config
     rows = [r for r in rows if r.get("status") == "ok" and r.get("seconds") and r.get("config")]
@@ -442,6 +486,11 @@ def cost_report(rows, *, studies=STUDIES, hours: float = 24.0, efficiency: float
         if held:  # full-length runs measured beside the model: scale by their median ratio
             res["holdout_factor"] = float(np.median(held))
             res["cpu_hours_holdout_corrected"] = res["cpu_hours"] * res["holdout_factor"]
+        if left:
+            rest = protocol_cost(m, study, rows=rows)
+            res["left"] = {"runs": rest["runs"], "cpu_hours": rest["cpu_hours"]}
+            if "holdout_factor" in res:
+                res["left"]["cpu_hours_holdout_corrected"] = rest["cpu_hours"] * res["holdout_factor"]
         cpu_h = res.get("cpu_hours_holdout_corrected", res["cpu_hours"])
         res["cores_for_hours"] = {"hours": hours, "efficiency": efficiency,
                                   "cores": int(math.ceil(cpu_h / (hours * efficiency)))}
@@ -496,4 +545,9 @@ def format_report(report) -> str:
             lines.append(f"  × {s['holdout_factor']:.2f} (held-out full-length runs / model) = "
                          f"{s['cpu_hours_holdout_corrected']:,.0f} CPU-hours")
         lines.append(f"  {c['cores']:,} cores for {c['hours']:g} h at {c['efficiency']:.0%} utilisation")
+        if "left" in s:
+            rest = s["left"]
+            corr = (f" (× {s['holdout_factor']:.2f}: {rest['cpu_hours_holdout_corrected']:,.1f})"
+                    if "cpu_hours_holdout_corrected" in rest else "")
+            lines.append(f"  left (runs the rows lack): {rest['runs']:,} runs, {rest['cpu_hours']:,.1f} CPU-hours{corr}")
     return "\n".join(lines)

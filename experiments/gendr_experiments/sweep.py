@@ -387,8 +387,9 @@ def _group(rows, keys):
 
 
 def fine_grid(best: float, steps=(-0.5, -0.25, 0.25, 0.5)) -> list[float]:
-    """τ values around ``best`` at ``best·10^s`` (the finer, second stage of the search)."""
-    return [float(f"{best * 10 ** s:.6g}") for s in steps]
+    """τ values around ``best`` at ``best·10^s`` (the finer, second stage of the search), rounded to 6
+    digits; step 0 is ``best`` itself (its coarse run, not a rerun at a rounded τ)."""
+    return [best if s == 0 else float(f"{best * 10 ** s:.6g}") for s in steps]
 
 
 #: config keys that name the renderer instance (set by a search's instance list, never by its base)
