@@ -53,7 +53,7 @@ pose)
     ;;
 shape-full)
     # §5.1 on every instance: 5 elevations x 3 lr x 7 tau, then 21 tau at 0.1-decade steps around each
-    # instance's best (20 new): 254,610 runs, ~3,800 CPU-hours (gendr experiment cost). gendr's tau is
+    # instance's best (18 new: the others are coarse tau): 242,215 runs, ~4,000 CPU-hours (gendr experiment cost). gendr's tau is
     # a width (squared instances render with width^2): the squared half searches widths 10^-0.5 ...
     # 10^-3.5 in 0.05-decade steps, i.e. the paper's renderer tau 1e-1 ... 1e-7 in 0.1-decade steps.
     FULL=(--experiment shape --protocol paper --dists all --tconorms all

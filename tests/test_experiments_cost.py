@@ -59,7 +59,8 @@ def test_study_run_counts():
     def count(name, insts):
         return len(list(protocol_runs(name, instances=insts)))
     assert count("shape-reduced", [0]) == 3 + 2               # 3 coarse τ, best·10^±0.5
-    assert count("shape-paper", [0]) == 5 * (3 * 7 + 20)      # 5 elevations × (3 lr × 7 τ + 20 new fine τ)
+    assert count("shape-paper", [0]) == 5 * (3 * 7 + 18)      # 5 elevations × (3 lr × 7 τ + 18 new fine τ:
+    #                                                           21 around 0.01 but 1e-3, 1e-2, 1e-1)
     assert count("pose-paper", [0]) == 3 * 2                  # 3 bins × 2 lr, 200 pairs each
     with pytest.raises(ValueError, match="unknown study"):
         next(protocol_runs("shape-everything"))
@@ -75,27 +76,17 @@ def test_cli_cost_on_the_committed_timing_rows(tmp_path, capsys):
     assert gendr_main(["experiment", "cost", str(RESULTS / "cost_timing.jsonl"), "--studies", "nope"]) == 2
 
 
-def test_the_full_protocol_commands_are_the_studies_the_model_counts(tmp_path):
+def test_the_full_protocol_commands_are_the_studies_the_model_counts():
     """experiments/paper_grid.sh shape-full / pose-full (printed, shell-quoted, by a stand-in for
     gendr) ask for the grids the cost model prices (PAPER_TAUS, PAPER_LRS, PAPER_ELEVATIONS,
     PAPER_FINE_STEPS; pose: 2 lr × 3 bins)."""
-    import os
-    import shlex
-    import subprocess
     from gendr_experiments.cli import _floats, build_parser, select_instances
     from gendr_experiments.cost import (PAPER_ELEVATIONS, PAPER_FINE_STEPS, PAPER_FINE_STEPS_SQUARED, PAPER_LRS,
                                         PAPER_TAUS, PAPER_TAUS_SQUARED, REDUCED_FINE_STEPS, REDUCED_TAUS)
-    script = RESULTS.parent / "paper_grid.sh"
-    show = tmp_path / "show_args"  # labels have spaces ("exponential rev"): print them quoted
-    show.write_text('#!/usr/bin/env bash\nprintf "%q " "$@"; echo\n')
-    show.chmod(0o755)
 
     def parsed(case):
-        out = subprocess.run(["bash", str(script), case], capture_output=True, text=True, check=True,
-                             env=dict(os.environ, GENDR=str(show), SCHEDULER="tcp://127.0.0.1:8786")).stdout
         commands = []
-        for line in out.splitlines():
-            args = shlex.split(line)
+        for args in _paper_grid_commands(case):
             assert args[:2] == ["experiment", "sweep"] and "--scheduler" in args
             commands.append(build_parser().parse_args(args[1:]))
         return commands
@@ -104,7 +95,7 @@ def test_the_full_protocol_commands_are_the_studies_the_model_counts(tmp_path):
     for a, variant, taus, steps in ((plain, "plain", PAPER_TAUS, PAPER_FINE_STEPS),
                                     (squared, "squared", PAPER_TAUS_SQUARED, PAPER_FINE_STEPS_SQUARED)):
         assert (a.protocol, a.dists, a.tconorms, a.variants, a.no_refine) == ("paper", "all", "all", variant, False)
-        assert np.allclose(_floats(a.taus), taus) and tuple(_floats(a.lrs)) == PAPER_LRS
+        assert tuple(_floats(a.taus)) == taus and tuple(_floats(a.lrs)) == PAPER_LRS  # exact: keys hash floats
         assert tuple(_floats(a.elevations)) == PAPER_ELEVATIONS and tuple(_floats(a.fine_steps)) == steps
     # squared: widths sqrt(tau) at half the decade steps = the paper's renderer tau grid
     assert np.allclose(np.square(_floats(squared.taus)), PAPER_TAUS)
@@ -127,22 +118,108 @@ def _row(cfg, metric, status="ok"):
 
 
 def test_runs_left_follows_the_sweeps_search():
-    """The runs a study still lacks: coarse runs without a finished row; the fine stage around the best
-    coarse τ once a search's coarse rows have all finished (else around 0.01, as protocol_runs)."""
+    """The runs a study still lacks: coarse runs without a finished row (an error is rerun); once a
+    search's coarse runs all have rows, the fine stage around their best τ (an error scoring worst),
+    before that around 0.01."""
     from gendr_experiments.cost import runs_left
-    coarse = [c for c in protocol_runs("shape-reduced", instances=[0, 5]) if c["tau"] in (0.003, 0.01, 0.03)]
-    assert len(coarse) == 6
+    insts = [0, 5, 7]
+    coarse = [c for c in protocol_runs("shape-reduced", instances=insts) if c["tau"] in (0.003, 0.01, 0.03)]
+    assert len(coarse) == 9
     metric = {0.003: 0.2, 0.01: 0.3, 0.03: 0.4}
-    rows = [_row(c, metric[c["tau"]]) for c in coarse if not (c["instance"] == 5 and c["tau"] == 0.03)]
-    rows.append(_row(next(c for c in coarse if c["instance"] == 5 and c["tau"] == 0.03), None, status="error"))
-    left = sorted((c["instance"], c["tau"]) for c in runs_left("shape-reduced", rows, instances=[0, 5]))
-    # instance 0: fine stage at 0.003·10^±0.25; instance 5: its errored coarse run, fine stage at 0.01·10^±0.25
-    assert left == [(0, 0.00168702), (0, 0.00533484), (5, 0.00562341), (5, 0.0177828), (5, 0.03)]
+    rows = [_row(c, metric[c["tau"]]) for c in coarse if c["instance"] == 0 or (c["instance"], c["tau"]) in
+            ((5, 0.003), (5, 0.01), (7, 0.03), (7, 0.01))]
+    rows.append(_row(next(c for c in coarse if (c["instance"], c["tau"]) == (5, 0.03)), None, status="error"))
+    left = sorted((c["instance"], c["tau"]) for c in runs_left("shape-reduced", rows, instances=insts))
+    assert left == [(0, 0.00168702), (0, 0.00533484),              # around 0.003
+                    (5, 0.00168702), (5, 0.00533484), (5, 0.03),   # around 0.003; the error reruns
+                    (7, 0.003), (7, 0.00562341), (7, 0.0177828)]   # a coarse run missing: around 0.01
     # a finished fine run is not left; every run is left without rows
-    fine = next(c for c in runs_left("shape-reduced", rows, instances=[0, 5]) if c["instance"] == 0)
-    assert len(list(runs_left("shape-reduced", rows + [_row(fine, 0.1)], instances=[0, 5]))) == 4
-    assert len(list(runs_left("shape-reduced", [], instances=[0, 5]))) == 10
+    fine = next(c for c in runs_left("shape-reduced", rows, instances=insts) if c["instance"] == 0)
+    assert len(list(runs_left("shape-reduced", rows + [_row(fine, 0.1)], instances=insts))) == 7
+    assert len(list(runs_left("shape-reduced", [], instances=insts))) == 15
     assert len(list(runs_left("pose-paper", [], instances=[3]))) == 6
+
+
+def test_runs_left_of_the_paper_search_averages_the_elevations():
+    """shape-paper: the fine stage's centre is the (τ, lr) of the lowest mean over the 5 elevations, not
+    of one elevation; fine τ that are coarse τ (0.01 ± 1 decade) are not new runs; no run twice."""
+    from gendr_experiments.cost import PAPER_FINE_STEPS, PAPER_LRS, PAPER_TAUS, runs_left
+    from gendr_experiments.sweep import config_hash, expand, fine_grid
+    coarse = [c for c in protocol_runs("shape-paper", instances=[0]) if c["tau"] in PAPER_TAUS]
+    assert len(coarse) == 5 * 3 * 7
+
+    def metric(c):  # elevation 60 alone prefers 1e-4; the mean over the five prefers 1e-3 at lr 10^-1.25
+        if c["elevation"] == 60.0:
+            return 0.0 if c["tau"] == 1e-4 else 0.9
+        return 0.1 if (c["tau"], c["lr"]) == (1e-3, PAPER_LRS[0]) else 0.5
+    rows = [_row(c, metric(c)) for c in coarse]
+    left = list(runs_left("shape-paper", rows, instances=[0]))
+    assert len({config_hash(c) for c in left}) == len(left) == 5 * 18  # 21 fine τ: 1e-3 and 1e-2, 1e-4 ran
+    want = expand("shape", {"protocol": "paper"}, instances=[0], axes={
+        "tau": [t for t in fine_grid(1e-3, PAPER_FINE_STEPS) if t not in (1e-2, 1e-3, 1e-4)],
+        "lr": [PAPER_LRS[0]], "seed": [0], "elevation": [-60.0, -30.0, 0.0, 30.0, 60.0]})
+    assert {config_hash(c) for c in left} == {config_hash(c) for c in want}
+    every = [config_hash(c) for c in protocol_runs("shape-paper", instances=[0, 27])]
+    # 27 is squared: widths sqrt(tau), whose ±0.5-decade neighbours are coarse widths too (snapped, not rerun)
+    assert len(every) == len(set(every)) == 2 * 5 * (3 * 7 + 18)
+
+
+@pytest.mark.parametrize("case, study", [("shape", "shape-reduced"), ("pose", "pose-reduced"),
+                                         ("shape-full", "shape-paper"), ("pose-full", "pose-paper")])
+def test_study_runs_are_the_runs_paper_grid_sh_asks_for(case, study):
+    """The cost model's study configs hash like those of the sweeps experiments/paper_grid.sh starts
+    (their command lines, parsed and planned as ``gendr experiment sweep`` does): coarse runs, and the
+    fine stage around a given best."""
+    from gendr_experiments.cli import build_parser, search_plan, select_instances
+    from gendr_experiments.cost import _fine, _searches
+    from gendr_experiments.sweep import EXPERIMENTS, config_hash, expand, fine_grid
+    searches = {}
+    for s in _searches(study):
+        searches[json.dumps(s.key)] = s
+    checked = 0
+    for line in _paper_grid_commands(case):
+        a = build_parser().parse_args(line[1:])
+        insts = select_instances(a)
+        plan = search_plan(a, insts[:1] + insts[-1:])  # the first and last instance of each sweep
+        tau_key = EXPERIMENTS[a.experiment]
+        axes = {tau_key: plan["taus"], "lr": plan["lrs"], "seed": plan["seeds"], **plan["extra_axes"]}
+        for inst in plan["instances"]:
+            s = next(v for v in searches.values() if _same_instance(v, inst))
+            sweep_coarse = expand(a.experiment, plan["base"], instances=[inst], axes=axes)
+            assert {config_hash(c) for c in sweep_coarse} == {config_hash(c) for c in s.coarse}
+            if plan["refine"]:
+                best_tau, best_lr = plan["taus"][1], plan["lrs"][-1]
+                fine = expand(a.experiment, plan["base"], instances=[inst], axes={
+                    tau_key: fine_grid(best_tau, plan["fine_steps"], plan["taus"]), "lr": [best_lr],
+                    "seed": plan["seeds"], **plan["extra_axes"]})
+                new = {config_hash(c) for c in fine} - {config_hash(c) for c in sweep_coarse}
+                assert new == {config_hash(c) for c in _fine(s, best_tau, best_lr)}
+            else:
+                assert not s.fine_bases
+            checked += 1
+    assert checked >= 2
+
+
+def _same_instance(search, inst):
+    c = search.coarse[0]
+    if isinstance(inst, dict):
+        return c.get("instance") is None and c["distribution"] == inst["distribution"] and c["tconorm"] == inst["tconorm"]
+    return c.get("instance") == inst
+
+
+def _paper_grid_commands(case):
+    """The ``gendr experiment sweep`` command lines experiments/paper_grid.sh runs for ``case``."""
+    import os
+    import shlex
+    import subprocess
+    import tempfile
+    with tempfile.TemporaryDirectory() as tmp:
+        show = Path(tmp) / "show_args"  # labels have spaces ("exponential rev"): print them quoted
+        show.write_text('#!/usr/bin/env bash\nprintf "%q " "$@"; echo\n')
+        show.chmod(0o755)
+        out = subprocess.run(["bash", str(RESULTS.parent / "paper_grid.sh"), case], capture_output=True, text=True,
+                             check=True, env=dict(os.environ, GENDR=str(show), SCHEDULER="tcp://127.0.0.1:8786")).stdout
+    return [shlex.split(line) for line in out.splitlines()]
 
 
 @pytest.mark.parametrize("study, name", [("shape-reduced", "paper_shape_grid"), ("pose-reduced", "paper_pose_grid")])

@@ -295,22 +295,10 @@ def select_instances(a) -> list:
     return uniq
 
 
-def cmd_sweep(a) -> int:
-    from .figures import grid_labels
-    from .sweep import EXPERIMENTS, best_setting_search, load_rows, write_csv
-    if a.list_labels:
-        dl, tl = grid_labels()
-        print("distributions (--dists):\n  " + "\n  ".join(dl))
-        from .figures import EXTRA_COLUMNS
-        print("T-conorms (--tconorms):\n  " + "\n  ".join(tl))
-        print("not T-conorms (--tconorms; runs outside the grid):\n  " + "\n  ".join(EXTRA_COLUMNS))
-        return 0
-    instances = select_instances(a)
-    if not instances:
-        print(f"{PROG}: error: choose instances with --instances and/or --dists/--tconorms", file=sys.stderr)
-        return 2
-    _apply_data(a)
-    from .sweep import full_config
+def search_plan(a, instances) -> dict:
+    """The arguments of :func:`~gendr_experiments.sweep.best_setting_search` (but experiment and the
+    run options) that a parsed ``sweep`` command line asks for."""
+    from .sweep import EXPERIMENTS, full_config
     base = _base_settings(a, protocol=a.protocol, backend=a.backend)
     preset = full_config(a.experiment, base)
     extra = {}
@@ -328,6 +316,27 @@ def cmd_sweep(a) -> int:
     for option, values in (("--taus", taus), ("--lrs", lrs)):
         if not all(v > 0 and v != float("inf") for v in values):
             raise UsageError(f"{option} must be numbers > 0, got {values}")
+    return dict(instances=instances, taus=taus, lrs=lrs, seeds=_ints(a.seeds, "--seeds"), base=base,
+                extra_axes=extra, refine=not a.no_refine, fine_steps=tuple(_floats(a.fine_steps, "--fine-steps")))
+
+
+def cmd_sweep(a) -> int:
+    from .figures import grid_labels
+    from .sweep import EXPERIMENTS, best_setting_search, load_rows, write_csv
+    if a.list_labels:
+        dl, tl = grid_labels()
+        print("distributions (--dists):\n  " + "\n  ".join(dl))
+        from .figures import EXTRA_COLUMNS
+        print("T-conorms (--tconorms):\n  " + "\n  ".join(tl))
+        print("not T-conorms (--tconorms; runs outside the grid):\n  " + "\n  ".join(EXTRA_COLUMNS))
+        return 0
+    instances = select_instances(a)
+    if not instances:
+        print(f"{PROG}: error: choose instances with --instances and/or --dists/--tconorms", file=sys.stderr)
+        return 2
+    _apply_data(a)
+    plan = search_plan(a, instances)
+    tau_key = EXPERIMENTS[a.experiment]
     if a.workers is not None and a.workers < 0:
         raise UsageError(f"--workers must be >= 0 (0: in this process), got {a.workers}")
     if a.scheduler is not None:
@@ -342,9 +351,7 @@ def cmd_sweep(a) -> int:
               progress=not a.quiet, other_code=a.other_code)
     t0 = time.perf_counter()
     n0 = _stored_lines(a.output)
-    best = best_setting_search(a.experiment, instances, taus=taus, lrs=lrs, seeds=_ints(a.seeds, "--seeds"),
-                               base=base, extra_axes=extra, refine=not a.no_refine,
-                               fine_steps=tuple(_floats(a.fine_steps, "--fine-steps")), **kw)  # (errors: main)
+    best = best_setting_search(a.experiment, **plan, **kw)  # (errors: main)
     rows = load_rows(a.output)
     if a.csv:
         write_csv(rows, a.csv)
@@ -687,7 +694,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "size of the paper's studies (docs/experiments.md, 'Scale').")
     p.add_argument("results", nargs="+", help="JSONL results files (sweeps, experiments/cost_timing.py)")
     p.add_argument("--studies", default="shape-paper,shape-reduced,pose-paper,pose-reduced",
-                   help="shape-paper (1,242 instances x 5 elevations x 3 lr x 7 tau + 21 fine tau), shape-reduced "
+                   help="shape-paper (1,242 instances x 5 elevations x (3 lr x 7 tau + 18 new fine tau)), shape-reduced "
                         "(experiments/paper_grid.sh shape), pose-paper (1,242 x 3 bins x 200 pairs x 2 lr), "
                         "pose-reduced (paper_grid.sh pose)")
     p.add_argument("--holdout", nargs="+", default=None, metavar="FILE",

@@ -29,7 +29,7 @@ import numpy as np
 
 from gendr.errors import ParameterError
 
-__all__ = ["Footprint", "footprint", "run_features", "CostModel", "fit_cost_model", "protocol_runs",
+__all__ = ["Footprint", "footprint", "run_features", "CostModel", "fit_cost_model", "protocol_runs", "runs_left",
            "protocol_cost", "PAPER_TAUS", "PAPER_LRS", "PAPER_ELEVATIONS", "PAPER_FINE_STEPS",
            "PAPER_TAUS_SQUARED", "PAPER_FINE_STEPS_SQUARED", "REDUCED_TAUS", "REDUCED_FINE_STEPS"]
 
@@ -317,8 +317,7 @@ def _searches(name: str, instances=None):
             lrs = PAPER_LRS if full else (10 ** -1.5,)
             bases = [full_config("shape", {"protocol": "paper", "elevation": el, **spec})
                      for el in (PAPER_ELEVATIONS if full else (30.0,))]
-            yield _Search(key, [dict(b, tau=t, lr=lr) for b in bases for t in taus for lr in lrs], bases,
-                          tuple(s for s in fine if s != 0))  # step 0 is the best coarse run
+            yield _Search(key, [dict(b, tau=t, lr=lr) for b in bases for t in taus for lr in lrs], bases, fine)
     else:
         if instances is None:
             five = ("max", "probabilistic", "einstein", "yager(p=2)", "dombi(p=0.5)")
@@ -336,8 +335,9 @@ def protocol_runs(name: str, *, best_tau=None, instances=None):
     """Yield the config of every run of a named study (the keys match the rows its sweep writes):
 
     * ``shape-paper``: the paper's search, every instance: 5 elevations × 3 lr × 7 τ, then at the best
-      lr 21 τ at 0.1-decade steps around the best τ (20 new; the best is a coarse run) at each
-      elevation (the best: of the mean over the elevations, as ``--elevations`` has it);
+      lr 21 τ at 0.1-decade steps around the best τ at each elevation (the best: of the mean over
+      the elevations, as ``--elevations`` has it; fine τ that are coarse τ are not run again: 18 new
+      around an inner best, 19 around an edge);
     * ``shape-reduced``: ``experiments/paper_grid.sh shape``: the 1,242 and "average" with each of the
       46 distribution settings, elevation 30, lr 10^-1.5, τ 0.003, 0.01, 0.03, then best·10^±0.25;
     * ``pose-paper``: every instance, 3 bins × 200 pairs (one run per bin) × lr {0.1, 0.3}, 1,000 steps;
@@ -354,26 +354,37 @@ def protocol_runs(name: str, *, best_tau=None, instances=None):
 
 
 def _fine(search, tau, lr):
+    """The fine stage's new runs: a fine τ that is a coarse τ has run at every lr already."""
     from .sweep import fine_grid
-    return [dict(b, tau=t, lr=lr) for b in search.fine_bases for t in fine_grid(tau, search.fine_steps)]
+    if not search.fine_bases:
+        return []
+    coarse = sorted({c["tau"] for c in search.coarse})
+    fine = [t for t in fine_grid(tau, search.fine_steps, coarse) if t not in coarse]
+    return [dict(b, tau=t, lr=lr) for b in search.fine_bases for t in fine]
 
 
 def runs_left(name: str, rows, *, instances=None):
     """The configs of the runs of study ``name`` (:func:`protocol_runs`) that ``rows`` do not hold
-    finished (``status`` ok; matched by key): a sweep's progress. A fine stage centres, as the sweep's
-    does, on the best τ and lr of its search's coarse rows once they have all finished, else on τ 0.01."""
+    finished (``status`` ok; rows matched by key): a sweep's progress, as ``paper_grid.sh`` (which
+    reruns errors) goes on. Coarse runs without a row or with an error are left. Once every coarse
+    run of a search has a row, its fine stage centres, as the sweep's does, on the best τ and lr of
+    those rows (an error scores as the worst value); before, on τ 0.01 at lr 10^-1.5."""
     from .sweep import config_hash, summarize_best
-    done = {r["key"]: r for r in rows if r.get("status") == "ok"}
+    by_key = {r["key"]: r for r in rows}
     for s in _searches(name, instances):
-        found = [done.get(config_hash(c)) for c in s.coarse]
-        yield from (c for c, r in zip(s.coarse, found) if r is None)
+        found = [by_key.get(config_hash(c)) for c in s.coarse]
+        yield from (c for c, r in zip(s.coarse, found) if r is None or r.get("status") != "ok")
         if not s.fine_bases:
             continue
         tau, lr = 0.01, 10 ** -1.5
-        if all(found):
-            (best,) = summarize_best(found, "shape").values()
-            tau, lr = best["tau"], best["lr"]
-        yield from (c for c in _fine(s, tau, lr) if config_hash(c) not in done)
+        best = summarize_best(found, "shape") if all(found) else {}
+        if best:  # one entry unless the rows name the instance differently (kept rows of older code)
+            b = min(best.values(), key=lambda v: v["score"])
+            tau, lr = b["tau"], b["lr"]
+        for c in _fine(s, tau, lr):
+            r = by_key.get(config_hash(c))
+            if r is None or r.get("status") != "ok":
+                yield c
 
 
 def protocol_cost(model: CostModel, name: str, *, rows=None, **kw) -> dict:
@@ -429,7 +440,7 @@ def cost_report(rows, *, studies=STUDIES, hours: float = 24.0, efficiency: float
     lack, :func:`runs_left`), ``holdout`` (rows not fitted, each measured against its model's prediction)."""
     from .figures import grid_labels
     from .sweep import full_config
-    rows = [r for r in rows if r.get("status") == "ok" and r.get("seconds") and r.get("config")]
+    all_rows, rows = rows, [r for r in rows if r.get("status") == "ok" and r.get("seconds") and r.get("config")]
     groups = {}
     for r in rows:
         groups.setdefault((r["experiment"], r.get("protocol") or "quick"), []).append(r)
@@ -487,7 +498,7 @@ def cost_report(rows, *, studies=STUDIES, hours: float = 24.0, efficiency: float
             res["holdout_factor"] = float(np.median(held))
             res["cpu_hours_holdout_corrected"] = res["cpu_hours"] * res["holdout_factor"]
         if left:
-            rest = protocol_cost(m, study, rows=rows)
+            rest = protocol_cost(m, study, rows=all_rows)
             res["left"] = {"runs": rest["runs"], "cpu_hours": rest["cpu_hours"]}
             if "holdout_factor" in res:
                 res["left"]["cpu_hours_holdout_corrected"] = rest["cpu_hours"] * res["holdout_factor"]

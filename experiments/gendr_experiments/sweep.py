@@ -386,10 +386,17 @@ def _group(rows, keys):
     return groups
 
 
-def fine_grid(best: float, steps=(-0.5, -0.25, 0.25, 0.5)) -> list[float]:
+def fine_grid(best: float, steps=(-0.5, -0.25, 0.25, 0.5), coarse=()) -> list[float]:
     """τ values around ``best`` at ``best·10^s`` (the finer, second stage of the search), rounded to 6
-    digits; step 0 is ``best`` itself (its coarse run, not a rerun at a rounded τ)."""
-    return [best if s == 0 else float(f"{best * 10 ** s:.6g}") for s in steps]
+    digits, except where that lands within 1e-6 (relative) of ``best`` or a ``coarse`` τ: then that
+    τ exactly, the same run (key) rather than a rerun at a rounded τ (squared widths such as
+    sqrt(0.1) are not 6-digit numbers)."""
+    known = (best, *coarse)
+    out = []
+    for s in steps:
+        t = float(f"{best * 10 ** s:.6g}")
+        out.append(next((c for c in known if abs(t - c) <= 1e-6 * c), t))
+    return out
 
 
 #: config keys that name the renderer instance (set by a search's instance list, never by its base)
@@ -418,7 +425,7 @@ def best_setting_search(experiment: str, instances, *, taus, lrs, seeds=(0,), ba
         from .common import instance_from_config
         by_label = {instance_from_config(c)[2]: c for c in instances if isinstance(c, dict)}
         for inst, best in summarize_best(rows, experiment).items():
-            ax = {tau_key: fine_grid(best[tau_key], fine_steps), "lr": [best["lr"]], "seed": list(seeds),
+            ax = {tau_key: fine_grid(best[tau_key], fine_steps, taus), "lr": [best["lr"]], "seed": list(seeds),
                   **(extra_axes or {})}
             if isinstance(inst, str):
                 if inst not in by_label:

@@ -303,7 +303,7 @@ def tune(target: str, *, budget: float, store="tune.jsonl", protocol: str = "qui
         for i in order:
             b = best[i]
             cfgs = expand("shape", base, instances=[spec_of[i]],
-                          axes={"tau": fine_grid(b["tau"], fine_steps), "lr": [b["lr"]], "seed": seeds})
+                          axes={"tau": fine_grid(b["tau"], fine_steps, taus), "lr": [b["lr"]], "seed": seeds})
             pending = [c for c in cfgs if _key(c) not in done_keys]
             if left > 0 and fits(fine + pending, left):
                 fine += pending
