@@ -137,6 +137,12 @@ def test_runs_left_follows_the_sweeps_search():
     fine = next(c for c in runs_left("shape-reduced", rows, instances=insts) if c["instance"] == 0)
     assert len(list(runs_left("shape-reduced", rows + [_row(fine, 0.1)], instances=insts))) == 7
     assert len(list(runs_left("shape-reduced", [], instances=insts))) == 15
+    # the report's figures: runs the rows hold (measured), runs they lack (predicted)
+    from gendr_experiments.cost import protocol_cost
+    flat = CostModel("shape", "paper", 10.0, 0.0, 0.0)  # 10 s per run
+    res = protocol_cost(flat, "shape-reduced", rows=rows, instances=insts)
+    assert (res["runs"], res["done"]["runs"], res["left"]["runs"]) == (15, 7, 8)
+    assert res["left"]["cpu_hours"] == pytest.approx(80 / 3600) and res["done"]["wall_hours"] == pytest.approx(7 / 3600)
     assert len(list(runs_left("pose-paper", [], instances=[3]))) == 6
 
 

@@ -29,7 +29,7 @@ import numpy as np
 
 from gendr.errors import ParameterError
 
-__all__ = ["Footprint", "footprint", "run_features", "CostModel", "fit_cost_model", "protocol_runs", "runs_left",
+__all__ = ["Footprint", "footprint", "run_features", "CostModel", "fit_cost_model", "protocol_runs", "study_progress", "runs_left",
            "protocol_cost", "PAPER_TAUS", "PAPER_LRS", "PAPER_ELEVATIONS", "PAPER_FINE_STEPS",
            "PAPER_TAUS_SQUARED", "PAPER_FINE_STEPS_SQUARED", "REDUCED_TAUS", "REDUCED_FINE_STEPS"]
 
@@ -363,17 +363,21 @@ def _fine(search, tau, lr):
     return [dict(b, tau=t, lr=lr) for b in search.fine_bases for t in fine]
 
 
-def runs_left(name: str, rows, *, instances=None):
-    """The configs of the runs of study ``name`` (:func:`protocol_runs`) that ``rows`` do not hold
-    finished (``status`` ok; rows matched by key): a sweep's progress, as ``paper_grid.sh`` (which
-    reruns errors) goes on. Coarse runs without a row or with an error are left. Once every coarse
-    run of a search has a row, its fine stage centres, as the sweep's does, on the best τ and lr of
-    those rows (an error scores as the worst value); before, on τ 0.01 at lr 10^-1.5."""
+def study_progress(name: str, rows, *, instances=None):
+    """Yield ``(config, row)`` for every run of study ``name`` (:func:`protocol_runs`) as its sweep
+    (``paper_grid.sh``, which reruns errors) goes on: ``row`` is the finished (``status`` ok) row of
+    that config among ``rows`` (matched by key), else None. Once every coarse run of a search has a
+    row, its fine stage centres, as the sweep's does, on the best τ and lr of those rows (an error
+    scores as the worst value); before, on τ 0.01 at lr 10^-1.5."""
     from .sweep import config_hash, summarize_best
     by_key = {r["key"]: r for r in rows}
+
+    def finished(c):
+        r = by_key.get(config_hash(c))
+        return r if r is not None and r.get("status") == "ok" else None
     for s in _searches(name, instances):
         found = [by_key.get(config_hash(c)) for c in s.coarse]
-        yield from (c for c, r in zip(s.coarse, found) if r is None or r.get("status") != "ok")
+        yield from ((c, r if r is not None and r.get("status") == "ok" else None) for c, r in zip(s.coarse, found))
         if not s.fine_bases:
             continue
         tau, lr = 0.01, 10 ** -1.5
@@ -381,23 +385,40 @@ def runs_left(name: str, rows, *, instances=None):
         if best:  # one entry unless the rows name the instance differently (kept rows of older code)
             b = min(best.values(), key=lambda v: v["score"])
             tau, lr = b["tau"], b["lr"]
-        for c in _fine(s, tau, lr):
-            r = by_key.get(config_hash(c))
-            if r is None or r.get("status") != "ok":
-                yield c
+        yield from ((c, finished(c)) for c in _fine(s, tau, lr))
+
+
+def runs_left(name: str, rows, *, instances=None):
+    """The configs of the runs of study ``name`` that ``rows`` do not hold finished
+    (:func:`study_progress`)."""
+    return (c for c, r in study_progress(name, rows, instances=instances) if r is None)
 
 
 def protocol_cost(model: CostModel, name: str, *, rows=None, **kw) -> dict:
     """Predicted ``runs``, ``cpu_hours`` and the most expensive single run of a study
-    (:func:`protocol_runs`) under ``model``; with ``rows``, of the runs they lack (:func:`runs_left`)."""
+    (:func:`protocol_runs`) under ``model``. With ``rows`` (a sweep's), its fine stages centre as
+    the sweep's do (:func:`study_progress`), and ``done`` (the runs the rows hold: their measured
+    CPU and wall hours) and ``left`` (the runs they lack: predicted) are added."""
     runs, total, worst = 0, 0.0, 0.0
-    cfgs = protocol_runs(name, **kw) if rows is None else runs_left(name, rows, instances=kw.get("instances"))
-    for cfg in cfgs:
+    done, left, left_s = [], 0, 0.0
+    pairs = (((c, None) for c in protocol_runs(name, **kw)) if rows is None
+             else study_progress(name, rows, instances=kw.get("instances")))
+    for cfg, row in pairs:
         s = model.predict(cfg)
         runs += 1
         total += s
         worst = max(worst, s)
-    return {"study": name, "runs": runs, "cpu_hours": total / 3600.0, "longest_run_s": worst}
+        if row is not None:
+            done.append(row)
+        else:
+            left += 1
+            left_s += s
+    out = {"study": name, "runs": runs, "cpu_hours": total / 3600.0, "longest_run_s": worst}
+    if rows is not None:
+        out["done"] = {"runs": len(done), "cpu_hours": sum(_timer(r)[1] for r in done) / 3600.0,
+                       "wall_hours": sum(float(r.get("seconds") or 0.0) for r in done) / 3600.0}
+        out["left"] = {"runs": left, "cpu_hours": left_s / 3600.0}
+    return out
 
 
 # ------------------------------------------------------------------------------------------------
@@ -436,8 +457,9 @@ def cost_report(rows, *, studies=STUDIES, hours: float = 24.0, efficiency: float
     measured wall seconds / predicted CPU seconds), ``table`` (shape-paper seconds per run by
     distribution, variant and τ), ``studies`` (runs, CPU-hours with the fine stage centred on the
     measured best τ or 0.01, and on 0.1 / 0.001 for every instance, cores for a run of ``hours``
-    at ``efficiency``; with ``left``, also ``left``: the runs and CPU-hours of the study that ``rows``
-    lack, :func:`runs_left`), ``holdout`` (rows not fitted, each measured against its model's prediction)."""
+    at ``efficiency``; with ``left``, the fine stages centred where the rows' sweep centres them and
+    ``done`` / ``left``: :func:`protocol_cost` with the rows), ``holdout`` (rows not fitted, each
+    measured against its model's prediction)."""
     from .figures import grid_labels
     from .sweep import full_config
     all_rows, rows = rows, [r for r in rows if r.get("status") == "ok" and r.get("seconds") and r.get("config")]
@@ -489,7 +511,8 @@ def cost_report(rows, *, studies=STUDIES, hours: float = 24.0, efficiency: float
         if m is None:
             report["studies"].append({"study": study, "error": f"no {study.split('-')[0]} paper-protocol rows to fit"})
             continue
-        res = protocol_cost(m, study, best_tau=measured)
+        # a sweep's rows (left): its fine stages where they are; else around the measured best τ
+        res = protocol_cost(m, study, rows=all_rows) if left else protocol_cost(m, study, best_tau=measured)
         if study.startswith("shape"):
             res["cpu_hours_if_best_tau"] = {
                 str(t): protocol_cost(m, study, best_tau=_Const(t))["cpu_hours"] for t in (0.1, 0.001)}
@@ -497,11 +520,8 @@ def cost_report(rows, *, studies=STUDIES, hours: float = 24.0, efficiency: float
         if held:  # full-length runs measured beside the model: scale by their median ratio
             res["holdout_factor"] = float(np.median(held))
             res["cpu_hours_holdout_corrected"] = res["cpu_hours"] * res["holdout_factor"]
-        if left:
-            rest = protocol_cost(m, study, rows=all_rows)
-            res["left"] = {"runs": rest["runs"], "cpu_hours": rest["cpu_hours"]}
-            if "holdout_factor" in res:
-                res["left"]["cpu_hours_holdout_corrected"] = rest["cpu_hours"] * res["holdout_factor"]
+            if left:
+                res["left"]["cpu_hours_holdout_corrected"] = res["left"]["cpu_hours"] * res["holdout_factor"]
         cpu_h = res.get("cpu_hours_holdout_corrected", res["cpu_hours"])
         res["cores_for_hours"] = {"hours": hours, "efficiency": efficiency,
                                   "cores": int(math.ceil(cpu_h / (hours * efficiency)))}
@@ -560,5 +580,8 @@ def format_report(report) -> str:
             rest = s["left"]
             corr = (f" (× {s['holdout_factor']:.2f}: {rest['cpu_hours_holdout_corrected']:,.1f})"
                     if "cpu_hours_holdout_corrected" in rest else "")
+            d = s["done"]
+            lines.append(f"  done (the rows' runs of it): {d['runs']:,} runs, {d['cpu_hours']:,.1f} CPU-hours measured "
+                         f"({d['wall_hours']:,.1f} wall-hours, one run at a time)")
             lines.append(f"  left (runs the rows lack): {rest['runs']:,} runs, {rest['cpu_hours']:,.1f} CPU-hours{corr}")
     return "\n".join(lines)
