@@ -27,7 +27,7 @@ LIGHT+=",gamma(5),gamma(5) rev,levy"
 
 case "${1:-}" in
 shape)
-    # reduced protocol: elevation 30 only, lr 10^-1.5 only, widths 10^-2.5, 10^-2, 10^-1.5, then
+    # reduced protocol: elevation 30 only, lr 10^-1.5 only, widths 0.003, 0.01, 0.03 (~10^-2.5, -2, -1.5), then
     # best * 10^(+-0.25). (A first pass with widths 0.1, 0.01, 0.001 found the best at 0.01 for 33 of
     # 42 instances and at 0.1 only for poor ones, where a run costs 10-30x more: gendr experiment cost.)
     COMMON=(--experiment shape --protocol paper --taus 0.003,0.01,0.03 --fine-steps=-0.25,0.25 --seeds 0
@@ -53,7 +53,8 @@ pose)
     ;;
 shape-full)
     # §5.1 on every instance: 5 elevations x 3 lr x 7 tau, then 21 tau at 0.1-decade steps around each
-    # instance's best (18 new: the others are coarse tau): 242,215 runs, ~4,000 CPU-hours (gendr experiment cost). gendr's tau is
+    # instance's best (18 new, 19 around a best at the grid's edge: the others are coarse tau): 242,215 runs,
+    # ~4,000 CPU-hours (gendr experiment cost). gendr's tau is
     # a width (squared instances render with width^2): the squared half searches widths 10^-0.5 ...
     # 10^-3.5 in 0.05-decade steps, i.e. the paper's renderer tau 1e-1 ... 1e-7 in 0.1-decade steps.
     FULL=(--experiment shape --protocol paper --dists all --tconorms all

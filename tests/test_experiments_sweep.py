@@ -84,11 +84,25 @@ def test_best_setting_search_refines_tau(tmp_path):
     assert summarize_best(rows) == best
 
 
-def test_fine_grid_step_zero_is_the_coarse_tau_itself():
-    """A fine grid with step 0 (the paper's: 21 steps from -1 to 1) must name the coarse run's τ exactly,
-    not a 6-digit rounding of it: squared widths such as sqrt(0.1) would otherwise rerun as new keys."""
+def test_fine_grid_names_coarse_tau_exactly():
+    """A fine τ that is the best or a coarse τ (step 0 of the paper's 21 steps; a squared width's
+    ±0.5-decade neighbours) must be that τ exactly, not a 6-digit rounding of it (a new key: a rerun)."""
     width = math.sqrt(0.1)
     assert fine_grid(width, (-0.05, 0.0, 0.05)) == [0.281838, width, 0.354813]
+    assert fine_grid(10 ** -1.9, (0.0,)) == [10 ** -1.9]                     # rounding moves it 4e-6
+    assert fine_grid(0.01, (0.1, 0.2), [10 ** -1.9]) == [10 ** -1.9, 0.0158489]
+    assert fine_grid(width, (-0.5, 0.5), [math.sqrt(0.01), 1.0]) == [math.sqrt(0.01), 1.0]
+
+
+def test_best_setting_search_does_not_rerun_a_coarse_tau(tmp_path):
+    """Squared widths sqrt(0.1), sqrt(0.001) with fine steps of a decade: one fine τ is the other
+    coarse width, so the search adds one run, not two."""
+    store = tmp_path / "s.jsonl"
+    taus = [math.sqrt(0.1), math.sqrt(0.001)]
+    best_setting_search("shape", [5], taus=taus, lrs=[0.05], base=TINY, store=store, workers=0, progress=False,
+                        fine_steps=(-1.0, 1.0))
+    rows = load_rows(store)
+    assert len(rows) == 3 and sum(r["tau"] in taus for r in rows) == 2
 
 
 def test_pool_and_dask_localcluster_give_identical_metrics(tmp_path):

@@ -98,6 +98,19 @@ def test_tune_within_budget_ranks_instances(tmp_path):
     assert len(store.read_text().splitlines()) == len(load_rows(store)) == n + again.runs
 
 
+def test_tune_does_not_rerun_a_coarse_tau(tmp_path):
+    """Fine steps of a decade around squared-style widths sqrt(0.1), sqrt(0.001): the step onto the
+    other coarse width is that run, not a rerun at the 6-digit rounding 0.0316228 / 0.316228."""
+    import math
+    store = tmp_path / "tune.jsonl"
+    taus = (math.sqrt(0.1), math.sqrt(0.001))
+    res = tune("tetrahedron", budget=10.0, store=store, base=dict(TINY, steps=2), workers=0, taus=taus,
+               fine_steps=(-1.0, 1.0))
+    assert any(b["refined"] for b in res.ranking)  # a fine stage ran
+    rows = load_rows(store)
+    assert not {0.0316228, 0.316228} & {r["tau"] for r in rows}
+
+
 @pytest.mark.parametrize("kwargs, error, words", [
     (dict(budget=0), ParameterError, "budget=0"),
     (dict(budget=-3.0), ParameterError, "budget=-3.0"),

@@ -694,7 +694,8 @@ def build_parser() -> argparse.ArgumentParser:
                                    "size of the paper's studies (docs/experiments.md, 'Scale').")
     p.add_argument("results", nargs="+", help="JSONL results files (sweeps, experiments/cost_timing.py)")
     p.add_argument("--studies", default="shape-paper,shape-reduced,pose-paper,pose-reduced",
-                   help="shape-paper (1,242 instances x 5 elevations x (3 lr x 7 tau + 18 new fine tau)), shape-reduced "
+                   help="shape-paper (1,242 instances x 5 elevations x (3 lr x 7 tau + 18 new fine tau, 19 around a best at "
+                        "the grid's edge)), shape-reduced "
                         "(experiments/paper_grid.sh shape), pose-paper (1,242 x 3 bins x 200 pairs x 2 lr), "
                         "pose-reduced (paper_grid.sh pose)")
     p.add_argument("--holdout", nargs="+", default=None, metavar="FILE",

@@ -43,7 +43,7 @@ PAPER_FINE_STEPS = tuple(round(0.1 * k, 1) for k in range(-10, 11))
 #: squared half is the widths sqrt(τ), its 0.1-decade fine steps are 0.05-decade steps of the width
 PAPER_TAUS_SQUARED = tuple(math.sqrt(t) for t in PAPER_TAUS)
 PAPER_FINE_STEPS_SQUARED = tuple(round(0.05 * k, 2) for k in range(-10, 11))
-#: experiments/paper_grid.sh shape: widths 10^-2.5, 10^-2, 10^-1.5, then best·10^±0.25
+#: experiments/paper_grid.sh shape: widths 0.003, 0.01, 0.03 (about 10^-2.5, 10^-2, 10^-1.5), then best·10^±0.25
 REDUCED_TAUS = (0.003, 0.01, 0.03)
 REDUCED_FINE_STEPS = (-0.25, 0.25)
 
@@ -367,8 +367,9 @@ def study_progress(name: str, rows, *, instances=None):
     """Yield ``(config, row)`` for every run of study ``name`` (:func:`protocol_runs`) as its sweep
     (``paper_grid.sh``, which reruns errors) goes on: ``row`` is the finished (``status`` ok) row of
     that config among ``rows`` (matched by key), else None. Once every coarse run of a search has a
-    row, its fine stage centres, as the sweep's does, on the best τ and lr of those rows (an error
-    scores as the worst value); before, on τ 0.01 at lr 10^-1.5."""
+    row, its fine stage centres, as the sweep's does, on the best τ and lr of those rows (a setting
+    whose runs all ended in an error is skipped, an error beside finished runs scores worst); before
+    (or if every coarse run ended in an error, which the sweep reruns first), on τ 0.01 at lr 10^-1.5."""
     from .sweep import config_hash, summarize_best
     by_key = {r["key"]: r for r in rows}
 
@@ -414,8 +415,9 @@ def protocol_cost(model: CostModel, name: str, *, rows=None, **kw) -> dict:
             left += 1
             left_s += s
     out = {"study": name, "runs": runs, "cpu_hours": total / 3600.0, "longest_run_s": worst}
-    if rows is not None:
-        out["done"] = {"runs": len(done), "cpu_hours": sum(_timer(r)[1] for r in done) / 3600.0,
+    if rows is not None:  # older rows have wall seconds only: not counted as CPU time
+        cpu = [r["cpu_seconds"] for r in done if r.get("cpu_seconds") is not None]
+        out["done"] = {"runs": len(done), "cpu_hours": sum(cpu) / 3600.0, "wall_only_runs": len(done) - len(cpu),
                        "wall_hours": sum(float(r.get("seconds") or 0.0) for r in done) / 3600.0}
         out["left"] = {"runs": left, "cpu_hours": left_s / 3600.0}
     return out
@@ -581,7 +583,8 @@ def format_report(report) -> str:
             corr = (f" (× {s['holdout_factor']:.2f}: {rest['cpu_hours_holdout_corrected']:,.1f})"
                     if "cpu_hours_holdout_corrected" in rest else "")
             d = s["done"]
+            wall_only = f"; {d['wall_only_runs']} rows with wall seconds only" if d["wall_only_runs"] else ""
             lines.append(f"  done (the rows' runs of it): {d['runs']:,} runs, {d['cpu_hours']:,.1f} CPU-hours measured "
-                         f"({d['wall_hours']:,.1f} wall-hours, one run at a time)")
+                         f"({d['wall_hours']:,.1f} wall-hours, one run at a time{wall_only})")
             lines.append(f"  left (runs the rows lack): {rest['runs']:,} runs, {rest['cpu_hours']:,.1f} CPU-hours{corr}")
     return "\n".join(lines)

@@ -388,14 +388,14 @@ def _group(rows, keys):
 
 def fine_grid(best: float, steps=(-0.5, -0.25, 0.25, 0.5), coarse=()) -> list[float]:
     """τ values around ``best`` at ``best·10^s`` (the finer, second stage of the search), rounded to 6
-    digits, except where that lands within 1e-6 (relative) of ``best`` or a ``coarse`` τ: then that
+    digits, except where ``best·10^s`` is (to 1e-9, relative) ``best`` or a ``coarse`` τ: then that
     τ exactly, the same run (key) rather than a rerun at a rounded τ (squared widths such as
     sqrt(0.1) are not 6-digit numbers)."""
     known = (best, *coarse)
     out = []
     for s in steps:
-        t = float(f"{best * 10 ** s:.6g}")
-        out.append(next((c for c in known if abs(t - c) <= 1e-6 * c), t))
+        x = best * 10 ** s
+        out.append(next((c for c in known if abs(x - c) <= 1e-9 * abs(c)), float(f"{x:.6g}")))
     return out
 
 
