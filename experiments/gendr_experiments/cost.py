@@ -29,8 +29,9 @@ import numpy as np
 
 from gendr.errors import ParameterError
 
-__all__ = ["Footprint", "footprint", "run_features", "CostModel", "fit_cost_model", "protocol_runs", "study_progress", "runs_left",
-           "protocol_cost", "PAPER_TAUS", "PAPER_LRS", "PAPER_ELEVATIONS", "PAPER_FINE_STEPS",
+__all__ = ["Footprint", "footprint", "run_features", "CostModel", "fit_cost_model", "protocol_runs",
+           "study_progress", "runs_left", "protocol_cost", "PAPER_TAUS", "PAPER_LRS", "PAPER_ELEVATIONS",
+           "PAPER_FINE_STEPS",
            "PAPER_TAUS_SQUARED", "PAPER_FINE_STEPS_SQUARED", "REDUCED_TAUS", "REDUCED_FINE_STEPS"]
 
 #: the paper's search (docs/reference_implementation.md §2): 7 coarse τ, 3 learning rates, 5
@@ -373,12 +374,11 @@ def study_progress(name: str, rows, *, instances=None):
     from .sweep import config_hash, summarize_best
     by_key = {r["key"]: r for r in rows}
 
-    def finished(c):
-        r = by_key.get(config_hash(c))
+    def ok(r):
         return r if r is not None and r.get("status") == "ok" else None
     for s in _searches(name, instances):
         found = [by_key.get(config_hash(c)) for c in s.coarse]
-        yield from ((c, r if r is not None and r.get("status") == "ok" else None) for c, r in zip(s.coarse, found))
+        yield from ((c, ok(r)) for c, r in zip(s.coarse, found))
         if not s.fine_bases:
             continue
         tau, lr = 0.01, 10 ** -1.5
@@ -386,7 +386,7 @@ def study_progress(name: str, rows, *, instances=None):
         if best:  # one entry unless the rows name the instance differently (kept rows of older code)
             b = min(best.values(), key=lambda v: v["score"])
             tau, lr = b["tau"], b["lr"]
-        yield from ((c, finished(c)) for c in _fine(s, tau, lr))
+        yield from ((c, ok(by_key.get(config_hash(c)))) for c in _fine(s, tau, lr))
 
 
 def runs_left(name: str, rows, *, instances=None):
