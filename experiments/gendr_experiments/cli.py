@@ -701,9 +701,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--holdout", nargs="+", default=None, metavar="FILE",
                    help="rows NOT to fit: printed as measured vs predicted (experiments/cost_timing.py --holdout)")
     p.add_argument("--left", action="store_true",
-                   help="also predict the runs of each study that the rows lack (a sweep's progress: pass its "
-                        "rows; a fine stage centres on its search's best coarse row once those have finished, "
-                        "else on tau 0.01)")
+                   help="a sweep's progress (pass its rows): per study, also the runs the rows hold (measured "
+                        "hours) and those they lack (predicted); a fine stage centres on its search's best coarse "
+                        "row once those all have rows, else on tau 0.01")
     p.add_argument("--hours", type=float, default=24.0, help="wall-clock time the cluster size is given for")
     p.add_argument("--efficiency", type=float, default=0.9, help="fraction of the cores kept busy")
     p.add_argument("--data", default=None, metavar="DIR", help="directory of the paper's files (paper:FILE)")

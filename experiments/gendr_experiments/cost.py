@@ -315,9 +315,9 @@ def _searches(name: str, instances=None):
                 taus, fine = ((PAPER_TAUS_SQUARED, PAPER_FINE_STEPS_SQUARED) if squared else (PAPER_TAUS, PAPER_FINE_STEPS))
             else:
                 taus, fine = REDUCED_TAUS, REDUCED_FINE_STEPS
-            lrs = PAPER_LRS if full else (10 ** -1.5,)
             bases = [full_config("shape", {"protocol": "paper", "elevation": el, **spec})
                      for el in (PAPER_ELEVATIONS if full else (30.0,))]
+            lrs = PAPER_LRS if full else (bases[0]["lr"],)  # the preset's, as the sweep without --lrs
             yield _Search(key, [dict(b, tau=t, lr=lr) for b in bases for t in taus for lr in lrs], bases, fine)
     else:
         if instances is None:
@@ -329,7 +329,7 @@ def _searches(name: str, instances=None):
         for inst in insts:
             base = full_config("pose", {"protocol": "paper", "instance": int(inst), "pairs": 200 if full else 17})
             yield _Search(int(inst), [dict(base, angle_min=a, angle_max=b, lr=lr) for a, b in PAPER_BINS
-                                      for lr in ((0.1, 0.3) if full else (0.3,))])
+                                      for lr in ((0.1, 0.3) if full else (base["lr"],))])
 
 
 def protocol_runs(name: str, *, best_tau=None, instances=None):
@@ -346,22 +346,23 @@ def protocol_runs(name: str, *, best_tau=None, instances=None):
       3 bins × 17 pairs, lr 0.3.
 
     ``best_tau``: instance (grid index, else label) -> the best coarse τ the fine stage centres on
-    (default 0.01; the fine stage runs at lr 10^-1.5); ``instances``: grid indices or config dicts
+    (default 0.01; the fine stage runs at the preset's lr, 10^-1.5); ``instances``: grid indices or config dicts
     outside the grid (default: the study's)."""
     best_tau = {} if best_tau is None else best_tau
     for s in _searches(name, instances):
         yield from s.coarse
-        yield from _fine(s, best_tau.get(s.key, 0.01), 10 ** -1.5)
+        yield from _fine(s, best_tau.get(s.key, 0.01))
 
 
-def _fine(search, tau, lr):
-    """The fine stage's new runs: a fine τ that is a coarse τ has run at every lr already."""
+def _fine(search, tau, lr=None):
+    """The fine stage's new runs (at ``lr``, default the preset's): a fine τ that is a coarse τ has
+    run at every lr already."""
     from .sweep import fine_grid
     if not search.fine_bases:
         return []
     coarse = sorted({c["tau"] for c in search.coarse})
     fine = [t for t in fine_grid(tau, search.fine_steps, coarse) if t not in coarse]
-    return [dict(b, tau=t, lr=lr) for b in search.fine_bases for t in fine]
+    return [dict(b, tau=t, lr=b["lr"] if lr is None else lr) for b in search.fine_bases for t in fine]
 
 
 def study_progress(name: str, rows, *, instances=None):
@@ -370,7 +371,8 @@ def study_progress(name: str, rows, *, instances=None):
     that config among ``rows`` (matched by key), else None. Once every coarse run of a search has a
     row, its fine stage centres, as the sweep's does, on the best τ and lr of those rows (a setting
     whose runs all ended in an error is skipped, an error beside finished runs scores worst); before
-    (or if every coarse run ended in an error, which the sweep reruns first), on τ 0.01 at lr 10^-1.5."""
+    (or if every coarse run ended in an error, which the sweep reruns first), on τ 0.01 at the
+    preset's lr."""
     from .sweep import config_hash, summarize_best
     by_key = {r["key"]: r for r in rows}
 
@@ -381,7 +383,7 @@ def study_progress(name: str, rows, *, instances=None):
         yield from ((c, ok(r)) for c, r in zip(s.coarse, found))
         if not s.fine_bases:
             continue
-        tau, lr = 0.01, 10 ** -1.5
+        tau, lr = 0.01, None
         best = summarize_best(found, "shape") if all(found) else {}
         if best:  # one entry unless the rows name the instance differently (kept rows of older code)
             b = min(best.values(), key=lambda v: v["score"])
