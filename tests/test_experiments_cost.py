@@ -179,9 +179,7 @@ def test_study_runs_are_the_runs_paper_grid_sh_asks_for(case, study):
     from gendr_experiments.cli import build_parser, search_plan, select_instances
     from gendr_experiments.cost import _fine, _searches
     from gendr_experiments.sweep import EXPERIMENTS, config_hash, expand, fine_grid
-    searches = {}
-    for s in _searches(study):
-        searches[json.dumps(s.key)] = s
+    searches = list(_searches(study))
     checked = 0
     for line in _paper_grid_commands(case):
         a = build_parser().parse_args(line[1:])
@@ -190,7 +188,7 @@ def test_study_runs_are_the_runs_paper_grid_sh_asks_for(case, study):
         tau_key = EXPERIMENTS[a.experiment]
         axes = {tau_key: plan["taus"], "lr": plan["lrs"], "seed": plan["seeds"], **plan["extra_axes"]}
         for inst in plan["instances"]:
-            s = next(v for v in searches.values() if _same_instance(v, inst))
+            s = next(v for v in searches if _same_instance(v, inst))
             sweep_coarse = expand(a.experiment, plan["base"], instances=[inst], axes=axes)
             assert {config_hash(c) for c in sweep_coarse} == {config_hash(c) for c in s.coarse}
             if plan["refine"]:
