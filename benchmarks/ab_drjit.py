@@ -44,7 +44,6 @@ def use(module, renderer):
     backend.raster = module
     be = renderer.backend
     be._types.clear()
-    be._ops.clear()
 
 
 def image_and_gradient(prob):

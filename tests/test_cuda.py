@@ -10,7 +10,8 @@ import pytest
 
 torch = pytest.importorskip("torch")
 import gendr  # noqa: E402
-from test_renderer_reference import FACES, FACES_SOFTMAX, H, W, make_camera, scene_vertices, vertex_colors  # noqa: E402
+from test_renderer_reference import (FACES, FACES_SOFTMAX, H, W, ZERO_AREA, make_camera, scene_vertices,  # noqa: E402
+                                     vertex_colors)
 
 TOL = 1e-9
 
@@ -49,11 +50,18 @@ def run(backend, device, case, freeze=False):
     return img.detach().cpu(), [None if g is None else g.cpu() for g in grads]
 
 
-def _close(a, b):
+def _close(a, b, skip_vertices=None):
+    """Images to TOL, gradients to TOL relative to the largest; ``skip_vertices``: rows of the
+    vertex gradient (the first) compared only for being finite."""
     assert float((a[0] - b[0]).abs().max()) <= TOL
-    for ga, gb in zip(a[1], b[1]):
+    for i, (ga, gb) in enumerate(zip(a[1], b[1])):
         assert (ga is None) == (gb is None)
         if ga is not None:
+            if i == 0 and skip_vertices is not None:
+                assert bool(ga[:, skip_vertices].isfinite().all())
+                keep = torch.ones(ga.shape[1], dtype=torch.bool)
+                keep[skip_vertices] = False
+                ga, gb = ga[:, keep], gb[:, keep]
             assert float((ga - gb).abs().max()) <= TOL * max(1.0, float(gb.abs().max()))
 
 
@@ -67,4 +75,8 @@ def test_torch_backend_on_cuda_matches_cpu(case):
 @pytest.mark.parametrize("freeze", [False, True])
 @pytest.mark.parametrize("case", CASES, ids=lambda c: f"{c[0][0]}|{c[1][0]}|{c[2]}")
 def test_drjit_cuda_variant_matches_cpu(case, freeze):
-    _close(run("drjit", "cuda", case, freeze), run("torch", "cpu", case))
+    # The zero-area face's vertices: its orientation is the sign of a cross product that is exactly
+    # 0 on the CPU; Dr.Jit's CUDA kernels fuse multiply-adds (FMA), whose single rounding leaves a
+    # tiny area of either sign. The gradient jumps there (measured: up to 0.7 of its largest
+    # entry); its image does not (coverage of a segment either way).
+    _close(run("drjit", "cuda", case, freeze), run("torch", "cpu", case), skip_vertices=ZERO_AREA)

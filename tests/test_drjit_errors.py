@@ -98,14 +98,34 @@ def test_drjit_input_dtype_errors():
 
 
 def test_device_selection():
-    r = gendr.Renderer(backend="drjit")
-    assert r.backend.device == ("cuda" if dr.has_backend(dr.JitBackend.CUDA) else "llvm")
+    """device=None follows the inputs (Dr.Jit tensors: their backend; torch tensors: LLVM on the CPU,
+    CUDA on a GPU; NumPy: CUDA when available); an explicit device is used for every render."""
+    from drjit.llvm.ad import TensorXf64
+    cuda = dr.has_backend(dr.JitBackend.CUDA)
+    r = gendr.Renderer(backend="drjit", image_size=(8, 10))
+    assert r.backend.device is None
+    img = r.render(V, F, CAM)  # torch on the CPU -> LLVM, the image a CPU tensor
+    assert isinstance(img, torch.Tensor) and img.device.type == "cpu"
+    assert dr.backend_v(r.render(TensorXf64(V.numpy()), F.numpy(), CAM)) == dr.JitBackend.LLVM
+    assert dr.backend_v(r.render(V.numpy(), F.numpy(), CAM)) == (dr.JitBackend.CUDA if cuda else dr.JitBackend.LLVM)
     assert gendr.Renderer(backend="drjit", device="llvm").backend.device == "llvm"
     with pytest.raises(ParameterError, match="device"):
         gendr.Renderer(backend="drjit", device="tpu")
-    if not dr.has_backend(dr.JitBackend.CUDA):
+    if not cuda:
         with pytest.raises(BackendUnavailableError, match="cuda"):
             gendr.Renderer(backend="drjit", device="cuda")
+        return
+    from drjit.cuda.ad import TensorXf64 as CudaTensor
+    on_gpu = gendr.Renderer(backend="drjit", device="cuda", image_size=(8, 10))
+    v = V.clone().requires_grad_(True)
+    img = on_gpu.render(v, F, CAM)  # computed on CUDA, back on the vertices' device, differentiably
+    assert img.device.type == "cpu"
+    img.sum().backward()
+    assert v.grad.device.type == "cpu" and float(v.grad.abs().sum()) > 0
+    with pytest.raises(ParameterError, match="LLVM tensor"):
+        on_gpu.render(TensorXf64(V.numpy()), F.numpy(), CAM)
+    with pytest.raises(ParameterError, match="camera parameter eye"):
+        r.render(CudaTensor(V.numpy()), F.numpy(), gendr.PerspectiveCamera(eye=TensorXf64(np.array([0.0, 0.0, 3.0]))))
 
 
 @pytest.mark.parametrize("blend", [None, "softmax", "hard"])

@@ -8,6 +8,7 @@ The image has the vertices' dtype (float32 or float64).
 """
 from __future__ import annotations
 
+import contextlib
 import sys
 
 import numpy as np
@@ -58,6 +59,71 @@ def _drjit_numpy(x):
 _BRIDGE = None
 
 
+def _module(device):
+    """Dr.Jit's AD types module of a device ("llvm" or "cuda")."""
+    if device == "cuda":
+        import drjit.cuda.ad as module
+    else:
+        import drjit.llvm.ad as module
+    return module
+
+
+def _device_of(x):
+    """The device ("llvm" or "cuda") of a Dr.Jit array."""
+    return "cuda" if dr.backend_v(x) == dr.JitBackend.CUDA else "llvm"
+
+
+def _check_available(device, what):
+    if not dr.has_backend(dr.JitBackend.CUDA if device == "cuda" else dr.JitBackend.LLVM):
+        raise BackendUnavailableError(
+            f"drjit backend {what}{device!r}: Dr.Jit's {device.upper()} backend is not available on this machine "
+            f"(available: {[d for d in DEVICES if dr.has_backend(getattr(dr.JitBackend, d.upper()))]})")
+
+
+def _check_device(x, T, name):
+    """A Dr.Jit input ``x`` must live on the render's device (Dr.Jit refuses to convert between them)."""
+    if _device_of(x) != T.device:
+        raise ParameterError(f"{name} is a Dr.Jit {_device_of(x).upper()} array but this render runs on "
+                             f"{T.device.upper()} (the vertices' device, or the backend's device=): make every "
+                             f"Dr.Jit input with drjit.{T.device}.ad")
+
+
+def exact_math(T):
+    """A context for Dr.Jit work on the types ``T``: on CUDA in float64, Dr.Jit's FastMath off.
+
+    With FastMath on (Dr.Jit's default), the CUDA backend computes float64 ``rcp``, ``rsqrt``,
+    ``tan``, ``tanh`` and the derivatives of division, ``sqrt``, ``log``, ``atan`` and powers with
+    PTX's approximate instructions: relative errors ~1e-6 (measured on an H100), which a float64
+    render would carry into its image and gradients. Float32 and the LLVM backend are left as they
+    are (there the approximations are within float32 rounding, or not used).
+    """
+    if _exact_math_needed(T):
+        return dr.scoped_set_flag(dr.JitFlag.FastMath, False)
+    return contextlib.nullcontext()
+
+
+def _exact_math_needed(T):
+    return T.double and T.device == "cuda"
+
+
+def _handoff(torch, device):
+    """Hand the arrays over between torch and Dr.Jit (either way), at both ends of the bridge's
+    forward and backward.
+
+    Torch runs the backward of CUDA tensors on its own device thread, and Dr.Jit keeps
+    per-thread state: as ``dr.wrap`` does, each handoff starts a new Dr.Jit scope (without it Dr.Jit
+    refuses to compile "r22 (scope 65) depends on r541 (scope 141)"). On CUDA the two also queue
+    work on different streams: both are synchronised, so that neither reads memory the other
+    has not finished writing.
+    """
+    for backend in (dr.JitBackend.LLVM, dr.JitBackend.CUDA):
+        if dr.has_backend(backend):
+            dr.detail.new_scope(backend)
+    if device is not None and device.type == "cuda":
+        torch.cuda.current_stream(device).synchronize()
+        dr.sync_thread()
+
+
 def _bridge():
     """A torch.autograd.Function running a Dr.Jit function (built on first use: torch is optional).
 
@@ -73,6 +139,8 @@ def _bridge():
         class DrJitFunction(torch.autograd.Function):
             @staticmethod
             def forward(ctx, fn, T, *tensors):
+                ctx.device = tensors[0].device if tensors else None
+                _handoff(torch, ctx.device)
                 inputs = []
                 for x in tensors:
                     d = T.Tensor(x.detach().contiguous())
@@ -82,11 +150,11 @@ def _bridge():
                 with torch.enable_grad():
                     out = fn(*inputs)
                 ctx.inputs, ctx.output, ctx.T = inputs, out, T
-                ctx.device = tensors[0].device if tensors else None
                 res = dr.detach(out).torch()
                 # (differentiable even where no gradient reaches the inputs — heaviside with "or"
                 # and no RGB, an empty mesh —, as the torch backend's: backward then gives zeros)
                 ctx.shapes = [(x.shape, x.dtype, x.device) for x in tensors]
+                _handoff(torch, ctx.device)
                 return res.to(ctx.device) if ctx.device is not None else res
 
             @staticmethod
@@ -96,20 +164,23 @@ def _bridge():
                 if not dr.grad_enabled(ctx.output):  # zeros, as the torch backend's graph gives
                     return (None, None, *[torch.zeros(shape, dtype=dt, device=dev) if need else None
                                           for need, (shape, dt, dev) in zip(ctx.needs_input_grad[2:], ctx.shapes)])
+                _handoff(torch, ctx.device)
                 for x in inputs:
                     if dr.grad_enabled(x):
                         dr.clear_grad(x)
-                dr.set_grad(ctx.output, T.Tensor(grad.detach().contiguous().to(dtype=grad.dtype)))
-                dr.enqueue(dr.ADMode.Backward, ctx.output)
-                dr.traverse(dr.ADMode.Backward, dr.ADFlag.ClearInterior | dr.ADFlag.ClearInput)
-                outs = []
-                for x in inputs:
-                    if dr.grad_enabled(x):
-                        g = dr.grad(x).torch()
-                        outs.append(g.to(ctx.device) if ctx.device is not None else g)
-                        dr.clear_grad(x)
-                    else:
-                        outs.append(None)
+                with exact_math(T):  # (flags are per thread: this may be torch's device thread)
+                    dr.set_grad(ctx.output, T.Tensor(grad.detach().contiguous().to(dtype=grad.dtype)))
+                    dr.enqueue(dr.ADMode.Backward, ctx.output)
+                    dr.traverse(dr.ADMode.Backward, dr.ADFlag.ClearInterior | dr.ADFlag.ClearInput)
+                    outs = []
+                    for x in inputs:
+                        if dr.grad_enabled(x):
+                            g = dr.grad(x).torch()
+                            outs.append(g.to(ctx.device) if ctx.device is not None else g)
+                            dr.clear_grad(x)
+                        else:
+                            outs.append(None)
+                _handoff(torch, ctx.device)
                 return (None, None, *outs)
 
         _BRIDGE = DrJitFunction
@@ -119,7 +190,11 @@ def _bridge():
 class DrJitBackend:
     """Renders with Dr.Jit: one fused per-pixel loop kernel per pass (see :mod:`gendr_drjit.raster`).
 
-    device : "llvm" (CPU), "cuda", or None (CUDA when available, else LLVM).
+    device : "llvm" (CPU), "cuda", or None: the inputs' — Dr.Jit tensors' own backend, LLVM for
+        torch tensors on the CPU and CUDA for torch tensors on a GPU (as the torch backend renders
+        on the vertices' device), and for NumPy inputs CUDA when available, else LLVM. Torch
+        tensors on another device than ``device`` are copied there (differentiably) and the image
+        comes back on the vertices' device.
     freeze : replay renders of the same shapes with ``dr.freeze`` instead of re-tracing them
         (see :mod:`gendr_drjit.frozen`; gradients work through a custom op).
     """
@@ -129,38 +204,40 @@ class DrJitBackend:
     def __init__(self, device=None, freeze=False):
         if not isinstance(freeze, bool):
             raise ParameterError(f"drjit backend parameter freeze={freeze!r} must be True or False")
-        if device is None:
-            device = "cuda" if dr.has_backend(dr.JitBackend.CUDA) else "llvm"
-        if device not in DEVICES:
+        if device is not None and device not in DEVICES:
             raise ParameterError(f"drjit backend parameter device={device!r} must be one of {DEVICES} or None")
-        jb = dr.JitBackend.CUDA if device == "cuda" else dr.JitBackend.LLVM
-        if not dr.has_backend(jb):
-            raise BackendUnavailableError(
-                f"drjit backend device={device!r} is not available on this machine "
-                f"(available: {[d for d in DEVICES if dr.has_backend(getattr(dr.JitBackend, d.upper()))]})")
+        if device is not None:
+            _check_available(device, "device=")
         self.device = device
-        if device == "cuda":
-            import drjit.cuda.ad as module
-        else:
-            import drjit.llvm.ad as module
-        self.module = module
         self._types = {}
-        self._ops = {}
         self.frozen = None
         if freeze:
             from .frozen import FrozenRenderer
             self.frozen = FrozenRenderer()
 
-    def types(self, double):
-        if double not in self._types:
-            T = raster.Types(self.module, double)
-            self._types[double] = T
-            self._ops[double] = DrJitOps(T.Float)
-        return self._types[double], self._ops[double]
+    def types(self, device, double):
+        """(raster.Types, DrJitOps) of a device ("llvm" or "cuda") and precision."""
+        if (device, double) not in self._types:
+            T = raster.Types(_module(device), double)
+            self._types[device, double] = T, DrJitOps(T.Float)
+        return self._types[device, double]
 
-    @property
-    def ops(self):
-        return self.types(True)[1]
+    def device_for(self, verts):
+        """The device ("llvm" or "cuda") a render of the vertices ``verts`` (an Input) runs on."""
+        if verts.kind == "drjit":
+            own = _device_of(verts.data)
+            if self.device not in (None, own):
+                raise ParameterError(f"vertices are a Dr.Jit {own.upper()} tensor but the drjit backend was made "
+                                     f"with device={self.device!r}: make them with drjit.{self.device}.ad, or "
+                                     f"leave device unset")
+            return own
+        if self.device is not None:
+            return self.device
+        if verts.kind == "torch":
+            device = "cuda" if verts.data.device.type == "cuda" else "llvm"
+            _check_available(device, f"vertices on {verts.data.device}: device ")
+            return device
+        return "cuda" if dr.has_backend(dr.JitBackend.CUDA) else "llvm"
 
     # --- the facade's protocol ----------------------------------------------------------------
     def float_array(self, x, name, like=None):
@@ -177,7 +254,7 @@ class DrJitBackend:
             if like is None and dt not in ("float32", "float64"):
                 raise DTypeError(f"{name} must be float32 or float64, got {dt}")
             if not dr.is_tensor_v(x):
-                raise DTypeError(f"{name}: Dr.Jit inputs must be tensors (e.g. {self.module.__name__}.TensorXf), "
+                raise DTypeError(f"{name}: Dr.Jit inputs must be tensors (e.g. drjit.llvm.ad.TensorXf), "
                                  f"got {type(x).__name__}")
             return Input("drjit", x, _drjit_numpy(x).astype(np.float64), like.dtype if like is not None else dt)
         a = np.asarray(x)
@@ -220,9 +297,22 @@ class DrJitBackend:
     def render(self, settings, verts, faces, camera, colors, per_face, texture=None, gbuffer=False):
         """The image [B, H, W, 4]; with ``gbuffer`` (then colors and texture are None) the packed
         G-buffer [B, H, W, 8] of :func:`raster.rasterize`. ``texture``: (texture Input, uvs Input,
-        uv_faces int64 NumPy) from gendr.textures.check_textured_inputs."""
+        uv_faces int64 NumPy) from gendr.textures.check_textured_inputs.
+
+        On CUDA, float64 renders run with Dr.Jit's FastMath off (:func:`exact_math`), their backward
+        through torch too. A backward that Dr.Jit inputs start outside (``dr.backward``) runs under
+        the caller's flags: turn ``dr.JitFlag.FastMath`` off there for float64 gradients."""
+        device = self.device_for(verts)
+        T, _ = self.types(device, verts.dtype == "float64")
+        with exact_math(T):
+            out = self._render_inputs(device, settings, verts, faces, camera, colors, per_face, texture, gbuffer)
+            if _exact_math_needed(T) and not _is_torch(out):
+                dr.eval(out)  # (kernels are assembled under the flags in force when they are evaluated)
+            return out
+
+    def _render_inputs(self, device, settings, verts, faces, camera, colors, per_face, texture, gbuffer):
         double = verts.dtype == "float64"
-        T, ops = self.types(double)
+        T, ops = self.types(device, double)
         cam = camera.array_params()
         tau = settings.tau
         # every torch tensor goes through dr.wrap (gradients flow back into torch)
@@ -251,26 +341,27 @@ class DrJitBackend:
         names = list(slots)
         out_dtype = torch.float64 if double else torch.float32
         # one dtype for everything (torch's .to is differentiable); CPU tensors for the LLVM device
-        dev = "cuda" if self.device == "cuda" else "cpu"
+        dev = "cuda" if device == "cuda" else "cpu"
         args = [slots[n].to(dtype=out_dtype, device=dev) for n in names]
 
         def fn(*dj):
             return self._render(*args0, dict(zip(names, dj)), texture, gbuffer)
-        return _bridge().apply(fn, T, *args)
+        home = slots[names[0]].device  # the vertices' device when they are torch tensors
+        return _bridge().apply(fn, T, *args).to(home)
 
     def _render(self, settings, camera, T, ops, verts, faces, colors, per_face, cam, tau, wrapped, texture=None,
                 gbuffer=False):
         """Everything in Dr.Jit; ``wrapped`` holds Dr.Jit versions of the torch inputs."""
-        vflat = self._flat(wrapped.get("vertices", verts.data if verts.kind != "torch" else None), verts, T)
+        vflat = self._flat(wrapped.get("vertices", verts.data if verts.kind != "torch" else None), verts, T, "vertices")
         Bv, V = (verts.shape[0], verts.shape[1]) if len(verts.shape) == 3 else (1, verts.shape[0])
         col = None
         if colors is not None:
-            cflat = self._flat(wrapped.get("colors", colors.data if colors.kind != "torch" else None), colors, T)
+            cflat = self._flat(wrapped.get("colors", colors.data if colors.kind != "torch" else None), colors, T, "colors")
             col = (cflat, colors.shape[0] if len(colors.shape) == 3 else 1)
         P, Bc, values = {}, 1, {}
         for name, (value, kind) in cam.items():
             v = wrapped.get("cam:" + name, value)
-            arr, shape = self._param(v, T)
+            arr, shape = self._param(v, T, f"camera parameter {name}")
             if kind == VEC3:
                 if shape == (3,):
                     shape = (1, 3)
@@ -296,13 +387,13 @@ class DrJitBackend:
         if Bv != 1 and Bc != 1 and Bv != Bc:
             raise ShapeError(f"vertex batch size {Bv} and camera batch size {Bc} do not match")
         t = wrapped.get("tau", tau)
-        tau_arr = self._opaque(self._param(t, T)[0], T)
+        tau_arr = self._opaque(self._param(t, T, "tau")[0], T)
         learn = settings.tconorm.learnable or settings.distribution.learnable
         if learn:  # the learnable parameters as width-1 AD arrays of the render dtype
             from dataclasses import replace
 
             def arrays(prefix, spec):
-                return {k: self._opaque(self._param(wrapped.get(prefix + k, v), T)[0], T)
+                return {k: self._opaque(self._param(wrapped.get(prefix + k, v), T, prefix + k)[0], T)
                         for k, v in spec.learnable.items()}
             settings = replace(settings, tconorm=settings.tconorm.with_arrays(arrays("tcn:", settings.tconorm)),
                                distribution=settings.distribution.with_arrays(arrays("dist:", settings.distribution)))
@@ -313,8 +404,8 @@ class DrJitBackend:
         tex = None
         if texture is not None:
             ti, ui, uvf = texture
-            tflat = self._flat(wrapped.get("texture", ti.data if ti.kind != "torch" else None), ti, T)
-            uflat = self._flat(wrapped.get("uvs", ui.data if ui.kind != "torch" else None), ui, T)
+            tflat = self._flat(wrapped.get("texture", ti.data if ti.kind != "torch" else None), ti, T, "texture")
+            uflat = self._flat(wrapped.get("uvs", ui.data if ui.kind != "torch" else None), ui, T, "uvs")
             Bt, Ht, Wt, C = (1, *ti.shape) if len(ti.shape) == 3 else ti.shape  # (batches 1 or B: the facade checked)
             Bu, Tn = (1, ui.shape[0]) if len(ui.shape) == 2 else ui.shape[:2]
             tex = (tflat, Bt, Ht, Wt, C, uflat, Bu, Tn, T.UInt32(np.asarray(uvf).reshape(-1).astype(np.uint32)))
@@ -332,19 +423,21 @@ class DrJitBackend:
         g = self.render(settings, verts, faces, camera, None, False, gbuffer=True)
         if _is_torch(g):
             return g[..., 7].round().long(), g[..., 0:3], g[..., 3], g[..., 4:7]
-        fid = self.module.TensorXi(g[..., 7])
+        fid = _module(_device_of(g)).TensorXi(g[..., 7])
         return fid, g[..., 0:3], g[..., 3], g[..., 4:7]
 
-    def _flat(self, x, inp, T):
+    def _flat(self, x, inp, T, name):
         """A flat AD array of ``T.Float`` from a Dr.Jit tensor (keeps AD) or the NumPy copy."""
         if x is not None and _is_drjit(x):
+            _check_device(x, T, name)
             a = x.array if dr.is_tensor_v(x) else x
             return a if type(a) is T.Float else T.Float(a)
         return T.Float(inp.np.reshape(-1).astype(np.float64 if T.double else np.float32))
 
-    def _param(self, v, T):
+    def _param(self, v, T, name):
         """(flat AD array, shape) of a camera parameter / τ of any supported kind."""
         if _is_drjit(v):
+            _check_device(v, T, name)
             if dr.is_tensor_v(v):
                 a, shape = v.array, tuple(v.shape)
             elif dr.depth_v(v) > 1:  # e.g. Array3f: components -> a flat row-major [n, 3] array (keeps AD)

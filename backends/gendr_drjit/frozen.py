@@ -144,7 +144,7 @@ class FrozenRenderer:
         for clip in (False, True):
             # one string (with the same tuple as the key, a change of only the clipping flag replayed the
             # old recording here; a minimal example re-recorded correctly, so the cause is open)
-            key = repr((settings_key(settings), camera_key(camera), T.double, Bc, Bv, V, F, cb, per_face, clip,
+            key = repr((settings_key(settings), camera_key(camera), T.device, T.double, Bc, Bv, V, F, cb, per_face, clip,
                         finite, raster.wide_layout(r), raster.face_major_backward(r, H), raster.deal_blocks(T)))
             if key not in self.static:
                 self.static[key] = _Static(settings, camera, T, ops, Bc, Bv, V, faces_np, cb, per_face, clip, finite)

@@ -73,6 +73,7 @@ class Types:
 
     def __init__(self, module, double):
         self.module = module
+        self.device = "cuda" if module.__name__.startswith("drjit.cuda") else "llvm"
         self.Float = module.Float64 if double else module.Float
         self.Tensor = module.TensorXf64 if double else module.TensorXf
         self.ArrayX = module.ArrayXf64 if double else module.ArrayXf
