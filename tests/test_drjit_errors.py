@@ -124,6 +124,10 @@ def test_device_selection():
     assert v.grad.device.type == "cpu" and float(v.grad.abs().sum()) > 0
     with pytest.raises(ParameterError, match="LLVM tensor"):
         on_gpu.render(TensorXf64(V.numpy()), F.numpy(), CAM)
+    # NumPy vertices: the first input with a device decides (a CPU torch τ: LLVM, the image on the CPU)
+    tau_cpu = torch.tensor(0.05, dtype=torch.float64, requires_grad=True)
+    img = gendr.Renderer(backend="drjit", image_size=(8, 10), tau=tau_cpu).render(V.numpy(), F.numpy(), CAM)
+    assert img.device.type == "cpu"
     with pytest.raises(ParameterError, match="camera parameter eye"):
         r.render(CudaTensor(V.numpy()), F.numpy(), gendr.PerspectiveCamera(eye=TensorXf64(np.array([0.0, 0.0, 3.0]))))
 

@@ -192,9 +192,11 @@ class DrJitBackend:
 
     device : "llvm" (CPU), "cuda", or None: the inputs' — Dr.Jit tensors' own backend, LLVM for
         torch tensors on the CPU and CUDA for torch tensors on a GPU (as the torch backend renders
-        on the vertices' device), and for NumPy inputs CUDA when available, else LLVM. Torch
-        tensors on another device than ``device`` are copied there (differentiably) and the image
-        comes back on the vertices' device.
+        on the vertices' device); with NumPy vertices the first other input that has a device
+        decides, and with none CUDA when available, else LLVM. Torch tensors on another device than
+        ``device`` are copied there (differentiably) and the image comes back on the vertices'
+        device (torch vertices), else on the render's. One GPU: Dr.Jit's current CUDA device and
+        torch's current one.
     freeze : replay renders of the same shapes with ``dr.freeze`` instead of re-tracing them
         (see :mod:`gendr_drjit.frozen`; gradients work through a custom op).
     """
@@ -222,21 +224,23 @@ class DrJitBackend:
             self._types[device, double] = T, DrJitOps(T.Float)
         return self._types[device, double]
 
-    def device_for(self, verts):
-        """The device ("llvm" or "cuda") a render of the vertices ``verts`` (an Input) runs on."""
-        if verts.kind == "drjit":
-            own = _device_of(verts.data)
-            if self.device not in (None, own):
-                raise ParameterError(f"vertices are a Dr.Jit {own.upper()} tensor but the drjit backend was made "
-                                     f"with device={self.device!r}: make them with drjit.{self.device}.ad, or "
-                                     f"leave device unset")
-            return own
+    def device_for(self, inputs):
+        """The device ("llvm" or "cuda") a render runs on: ``device=``, else that of the first of
+        ``inputs`` (the render's arrays, vertices first) that has one — a Dr.Jit array's backend, a
+        torch tensor's device —, else CUDA when available (all NumPy)."""
+        if _is_drjit(inputs[0]) and self.device not in (None, _device_of(inputs[0])):
+            raise ParameterError(f"vertices are a Dr.Jit {_device_of(inputs[0]).upper()} tensor but the drjit backend "
+                                 f"was made with device={self.device!r}: make them with drjit.{self.device}.ad, "
+                                 f"or leave device unset")
         if self.device is not None:
             return self.device
-        if verts.kind == "torch":
-            device = "cuda" if verts.data.device.type == "cuda" else "llvm"
-            _check_available(device, f"vertices on {verts.data.device}: device ")
-            return device
+        for x in inputs:
+            if _is_drjit(x):
+                return _device_of(x)
+            if _is_torch(x):
+                device = "cuda" if x.device.type == "cuda" else "llvm"
+                _check_available(device, f"inputs on {x.device}: device ")
+                return device
         return "cuda" if dr.has_backend(dr.JitBackend.CUDA) else "llvm"
 
     # --- the facade's protocol ----------------------------------------------------------------
@@ -302,7 +306,11 @@ class DrJitBackend:
         On CUDA, float64 renders run with Dr.Jit's FastMath off (:func:`exact_math`), their backward
         through torch too. A backward that Dr.Jit inputs start outside (``dr.backward``) runs under
         the caller's flags: turn ``dr.JitFlag.FastMath`` off there for float64 gradients."""
-        device = self.device_for(verts)
+        arrays = [verts.data, colors.data if colors is not None else None, settings.tau,
+                  *settings.tconorm.learnable.values(), *settings.distribution.learnable.values(),
+                  *(v for v, _ in camera.array_params().values()),
+                  *((texture[0].data, texture[1].data) if texture is not None else ())]
+        device = self.device_for(arrays)
         T, _ = self.types(device, verts.dtype == "float64")
         with exact_math(T):
             out = self._render_inputs(device, settings, verts, faces, camera, colors, per_face, texture, gbuffer)
@@ -342,11 +350,14 @@ class DrJitBackend:
         out_dtype = torch.float64 if double else torch.float32
         # one dtype for everything (torch's .to is differentiable); CPU tensors for the LLVM device
         dev = "cuda" if device == "cuda" else "cpu"
+        if dev == "cuda" and not torch.cuda.is_available():
+            raise BackendUnavailableError("drjit backend: this render runs on CUDA (device='cuda', or Dr.Jit CUDA "
+                                          "inputs) but this torch build has no CUDA, so its tensors cannot go there")
         args = [slots[n].to(dtype=out_dtype, device=dev) for n in names]
 
         def fn(*dj):
             return self._render(*args0, dict(zip(names, dj)), texture, gbuffer)
-        home = slots[names[0]].device  # the vertices' device when they are torch tensors
+        home = verts.data.device if verts.kind == "torch" else torch.device(dev)
         return _bridge().apply(fn, T, *args).to(home)
 
     def _render(self, settings, camera, T, ops, verts, faces, colors, per_face, cam, tau, wrapped, texture=None,
