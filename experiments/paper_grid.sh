@@ -9,14 +9,16 @@
 #
 # Needs the paper's meshes in $GENDR_PAPER_DATA (default ~/.cache/gendr/paper_data; see
 # docs/experiments.md). WORKERS (default 2) local processes, one thread each; SCHEDULER=tcp://host:8786
-# runs on a Dask cluster instead; RESULTS (default experiments/results) is where the rows go.
+# runs on a Dask cluster instead; RESULTS (default experiments/results) is where the rows go;
+# DEVICE=cuda renders on a GPU (sweep --device; rows keep their keys and record the device).
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 GENDR="${GENDR:-.venv/bin/gendr}"   # a command (may have words: "python -m gendr.cli")
 RESULTS="${RESULTS:-experiments/results}"
 WORKERS="${WORKERS:-2}"
-RUN=(--workers "$WORKERS" --other-code keep --retry-errors -q)
-[[ -n "${SCHEDULER:-}" ]] && RUN=(--scheduler "$SCHEDULER" --other-code keep --retry-errors -q)
+DEVICE="${DEVICE:-cpu}"
+RUN=(--workers "$WORKERS" --other-code keep --retry-errors --device "$DEVICE" -q)
+[[ -n "${SCHEDULER:-}" ]] && RUN=(--scheduler "$SCHEDULER" --other-code keep --retry-errors --device "$DEVICE" -q)
 # a sweep exits 1 when some of its runs ended in an error (their rows say why; --retry-errors reruns
 # them on the next pass): report it and go on with the rest of the grid
 sweep() { $GENDR experiment sweep "$@" || echo "paper_grid.sh: a sweep ended with errors (see its rows); going on" >&2; }

@@ -34,6 +34,7 @@ TINY = ["--set", "image_size=8", "--set", "views=1", "--set", "steps=1"]
     (["pose", "--tau-start", "-1"], "tau_start=-1.0 must be a finite number > 0"),
     (["pose", "--angle-min", "80", "--angle-max", "10"], "angle_min=80.0 > angle_max=10.0"),
     (["shape", "--instance", "5", "--distribution", "cauchy"], "do not combine it with --distribution"),
+    (["sweep", "--experiment", "shape", "--instances", "1", "--device", "cuda"], "--device cuda needs the drjit backend"),
 ])
 def test_bad_options_are_one_line_usage_errors(tmp_path, capsys, argv, words):
     out = tmp_path / "rows.jsonl"

@@ -46,7 +46,8 @@ def test_fit_recovers_a_known_model():
                 cfg = _cfg(inst, tau, steps=steps)
                 rows.append({"experiment": "shape", "protocol": "quick", "status": "ok", "config": cfg,
                              "seconds": 2 * truth.predict(cfg), "cpu_seconds": truth.predict(cfg)})
-    m = fit_cost_model(rows, prior_weight=1e-3)
+    gpu = [dict(r, cpu_seconds=r["cpu_seconds"] / 50, provenance={"device": "cuda"}) for r in rows]
+    m = fit_cost_model(rows + gpu, prior_weight=1e-3)  # (a model of CPU runs: GPU rows are left out)
     assert m.timer == "cpu_seconds" and m.n_rows == len(rows)
     assert m.median_abs_log_error < 0.01
     for r in rows:

@@ -158,12 +158,25 @@ def test_verify_rows_asks_exactness_only_on_the_same_simd_level(tmp_path):
     prov = row["provenance"]
     elsewhere = dict(row, metric=row["metric"] + 0.01, provenance=dict(prov, cpu=dict(prov["cpu"], simd="OTHER")))
     unrecorded = dict(row, metric=row["metric"] + 0.01, provenance={k: v for k, v in prov.items() if k != "cpu"})
-    same, other, unknown = verify_rows([row, elsewhere, unrecorded])
-    assert same["same_cpu"] and same["tolerance"] == 0.0 and same["ok"]
+    on_gpu = dict(row, metric=row["metric"] + 0.01, provenance=dict(prov, device="cuda"))
+    same, other, unknown, gpu = verify_rows([row, elsewhere, unrecorded, on_gpu])
+    assert same["same_cpu"] and same["same_device"] and same["tolerance"] == 0.0 and same["ok"]
     for v, simd in ((other, "OTHER"), (unknown, None)):
         assert v["same_code"] and not v["same_cpu"] and v["stored_simd"] == simd
         assert v["tolerance"] == drift_tolerance(row) > 0.01 and v["ok"]
         assert v["drift"] == pytest.approx(0.01)
+    # a row whose renders ran on a GPU (sweep --device cuda): FMAs and another summation order
+    assert gpu["same_cpu"] and not gpu["same_device"] and gpu["tolerance"] == drift_tolerance(row)
+
+
+def test_run_config_device():
+    """device="cuda" is a run-time option of drjit runs: not in the key, recorded in the provenance."""
+    cfg = _configs()[0]
+    row = run_config(cfg, "cuda")  # a torch config
+    assert row["status"] == "error" and "needs the drjit backend" in row["error"]
+    assert row["key"] == run_config(cfg)["key"] and row["provenance"]["device"] == "cuda"
+    with pytest.raises(ValueError, match="device='tpu'"):
+        run_config(cfg, "tpu")
 
 
 def test_execute_starts_nothing_after_the_deadline(tmp_path):

@@ -112,6 +112,24 @@ def _instance_options(p):
                    help="compute threads of the backend (default: its own; with drjit torch keeps 1)")
 
 
+def _device_option(p):
+    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
+                   help="cuda: the soft renders on Dr.Jit's CUDA variant (drjit backend; the model, losses, "
+                        "target and hard metric stay on the CPU); rows keep the CPU run's key and record "
+                        "the device (default: %(default)s)")
+
+
+def _check_device(a, backends):
+    """--device cuda: every run uses the drjit backend and Dr.Jit has CUDA here."""
+    if a.device != "cuda":
+        return
+    if set(backends) != {"drjit"}:
+        raise UsageError(f"--device cuda needs the drjit backend (these runs use {sorted(set(backends))})")
+    import drjit as dr
+    if not dr.has_backend(dr.JitBackend.CUDA):
+        raise UsageError("--device cuda: Dr.Jit's CUDA backend is not available on this machine")
+
+
 def _protocol_options(p):
     p.add_argument("--protocol", choices=("quick", "paper"), default="quick",
                    help="named settings (docs/experiments.md, `gendr experiment protocols`); options given "
@@ -322,7 +340,7 @@ def search_plan(a, instances) -> dict:
 
 def cmd_sweep(a) -> int:
     from .figures import grid_labels
-    from .sweep import EXPERIMENTS, best_setting_search, load_rows, write_csv
+    from .sweep import EXPERIMENTS, best_setting_search, full_config, load_rows, write_csv
     if a.list_labels:
         dl, tl = grid_labels()
         print("distributions (--dists):\n  " + "\n  ".join(dl))
@@ -347,8 +365,9 @@ def cmd_sweep(a) -> int:
             raise UsageError(f"--scheduler {a.scheduler!r} is not a Dask address like tcp://HOST:8786")
     _writable(a.csv, "--csv")
     _rows_file(a.output)
+    _check_device(a, [full_config(a.experiment, plan["base"]).get("backend")])
     kw = dict(store=a.output, workers=a.workers, scheduler=a.scheduler, retry_errors=a.retry_errors,
-              progress=not a.quiet, other_code=a.other_code)
+              progress=not a.quiet, other_code=a.other_code, device=a.device)
     t0 = time.perf_counter()
     n0 = _stored_lines(a.output)
     best = best_setting_search(a.experiment, **plan, **kw)  # (errors: main)
@@ -449,12 +468,14 @@ def cmd_verify(a) -> int:
         return _no_rows(a.results)
     if not any(r.get("status") == "ok" for r in rows):
         return _no_rows(a.results, "finished (status ok) rows to re-run")
-    report = verify_rows(rows, sample=a.sample, seed=a.seed, tolerance=a.tolerance)
+    _check_device(a, [r["config"].get("backend") for r in rows if r.get("status") == "ok"])
+    report = verify_rows(rows, sample=a.sample, seed=a.seed, tolerance=a.tolerance, device=a.device)
     print(f"{'key':16s} {'label':40s} {'stored':>9s} {'now':>9s} {'drift':>9s} {'tol':>6s} code, cpu")
     for v in report:
         fmt = lambda x: "None" if x is None else f"{x:9.4g}"
         code = "same code" if v["same_code"] else f"other code ({v['stored_code']})"
         cpu = "same cpu" if v["same_cpu"] else f"other cpu ({v['stored_simd'] or 'not recorded'})"
+        cpu += "" if v["same_device"] else f", other device (now {a.device})"
         resid = (f", median error drift {v['residual_drift']:.3g} deg (tol {v['residual_tolerance']:.3g})"
                  if "residual_drift" in v else "")
         print(f"{v['key']:16s} {str(v['label'])[:40]:40s} {fmt(v['stored']):>9s} {fmt(v['now']):>9s} "
@@ -664,6 +685,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, default=None, help="local processes (default: CPU count; 0 = in-process)")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="run on a Dask cluster, e.g. tcp://host:8786")
     p.add_argument("--retry-errors", action="store_true", help="rerun rows that ended in an error")
+    _device_option(p)
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_sweep)
 
@@ -676,6 +698,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tolerance", type=float, default=None, help="absolute metric tolerance (default: per experiment)")
     p.add_argument("--data", default=None, metavar="DIR", help="directory of the paper's files (paper:FILE)")
     p.add_argument("--json", default=None, metavar="OUT.json", help="also write the report as JSON")
+    _device_option(p)
     p.set_defaults(func=cmd_verify)
 
     p = sub.add_parser("findings", formatter_class=F, help="the paper's §5 findings checked against sweep rows",

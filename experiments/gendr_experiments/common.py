@@ -501,13 +501,16 @@ def cpu_info() -> dict:
     return {"model": model, "simd": torch.backends.cpu.get_cpu_capability()}
 
 
-def provenance(backend: str) -> dict:
+def provenance(backend: str, device: str = "cpu") -> dict:
     """What a result row records about the code and machine that made it: versions, the source hash
-    (:func:`source_hash`), backend, device, dtype, thread counts and the CPU (:func:`cpu_info`)."""
-    out = {"code_hash": source_hash(backend), "backend": backend, "device": "cpu", "dtype": "float32",
+    (:func:`source_hash`), backend, device ("cpu", or "cuda" with the GPU's name), dtype, thread
+    counts and the CPU (:func:`cpu_info`)."""
+    out = {"code_hash": source_hash(backend), "backend": backend, "device": device, "dtype": "float32",
            "torch_threads": torch.get_num_threads(), "machine": platform.machine(), "cpu": cpu_info(),
            "git_commit": git_commit(), "versions": versions()}
     if backend == "drjit":
         import drjit
         out["drjit_threads"] = drjit.thread_count()
+    if device == "cuda":
+        out["gpu"] = torch.cuda.get_device_name() if torch.cuda.is_available() else None
     return out

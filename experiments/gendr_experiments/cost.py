@@ -227,9 +227,11 @@ def fit_cost_model(rows, *, prior_weight: float = 0.3, k_from: CostModel | None 
     with few rows stay near the others). ``k_from``: take the per-pair factors of this model (the
     same renderer backend's; they are the renderer's, not the experiment's) and fit only c0..c2."""
     from scipy.optimize import least_squares
-    rows = [r for r in rows if r.get("status") == "ok" and r.get("seconds")]
+    # (a model of CPU runs: rows whose renders ran on a GPU, `sweep --device cuda`, are left out)
+    rows = [r for r in rows if r.get("status") == "ok" and r.get("seconds")
+            and r.get("provenance", {}).get("device", "cpu") == "cpu"]
     if not rows:
-        raise ParameterError("no finished rows to fit a cost model to")
+        raise ParameterError("no finished rows (of CPU runs) to fit a cost model to")
     groups = {(r["experiment"], r.get("protocol")) for r in rows}
     if len(groups) != 1:
         raise ParameterError(f"fit one (experiment, protocol) at a time, got {sorted(map(str, groups))}")

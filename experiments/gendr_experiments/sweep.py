@@ -39,6 +39,9 @@ __all__ = ["EXPERIMENTS", "OtherCodeError", "SchedulerUnreachableError", "full_c
 #: experiment name -> (defaults, runner path, the config key the τ grid sets, lower_is_better aggregate)
 EXPERIMENTS = {"shape": "tau", "pose": "tau_start"}
 
+#: where a run's soft renders run (:func:`run_config`)
+DEVICES = ("cpu", "cuda")
+
 
 def full_config(experiment: str, overrides: dict) -> dict:
     """The full config of one run: the preset named by ``overrides["protocol"]`` (default ``quick``)
@@ -104,11 +107,18 @@ def _single_thread():
         pass
 
 
-def run_config(cfg: dict) -> dict:
+def run_config(cfg: dict, device: str = "cpu") -> dict:
     """Run one config (in any process) and return its result row: the metrics, the config, and the
     provenance (:func:`~gendr_experiments.common.provenance`: versions, source hash, backend,
     device, dtype, threads). One thread, so a run gives the same numbers wherever it runs.
-    Exceptions become rows with ``status="error"``."""
+    Exceptions become rows with ``status="error"``.
+
+    ``device="cuda"`` (drjit backend only) runs the soft renders of the optimisation on Dr.Jit's
+    CUDA variant; the model, losses, Adam, the target silhouettes and the hard IoU metric stay on
+    the CPU, as in a CPU run. The device is a run-time option, not part of the config: the row's
+    key is the CPU run's, and its provenance records the device."""
+    if device not in DEVICES:
+        raise ParameterError(f"device={device!r} must be one of {DEVICES}")
     _single_thread()
     from .common import instance_from_config
     t0, c0 = time.perf_counter(), time.process_time()
@@ -118,12 +128,15 @@ def run_config(cfg: dict) -> dict:
         dist, tcn, label = instance_from_config(cfg)
         row.update(label=label, distribution=dist.label().replace("+sq", ""), squared=bool(dist.squared),
                    tconorm=tcn.label())
+        if device == "cuda" and cfg.get("backend") != "drjit":
+            raise ParameterError(f"device='cuda' needs the drjit backend, this config has {cfg.get('backend')!r}")
+        options = {"device": "cuda"} if device == "cuda" else None
         if cfg["experiment"] == "shape":
             from .shape import run_shape
-            res = run_shape(cfg)
+            res = run_shape(cfg, backend_options=options)
         else:
             from .pose import run_pose
-            res = run_pose(cfg)
+            res = run_pose(cfg, backend_options=options)
         res.pop("final_vertices", None)
         res.pop("faces", None)
         row.update(res)
@@ -136,7 +149,7 @@ def run_config(cfg: dict) -> dict:
     row["seconds"] = time.perf_counter() - t0
     row["cpu_seconds"] = time.process_time() - c0  # beside wall seconds: what a run costs on a shared machine
     row["config"] = cfg
-    row["provenance"] = provenance(cfg.get("backend", "torch"))
+    row["provenance"] = provenance(cfg.get("backend", "torch"), device)
     row["code_hash"] = row["provenance"]["code_hash"]
     row["finished_at"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
     return _clean(row)
@@ -250,8 +263,9 @@ OTHER_CODE = ("refuse", "keep", "rerun")
 
 def execute(configs, store: ResultStore | str, *, workers: int | None = None, scheduler=None,
             progress: bool = True, retry_errors: bool = False, other_code: str = "refuse",
-            stream=None, deadline: float | None = None) -> list[dict]:
+            stream=None, deadline: float | None = None, device: str = "cpu") -> list[dict]:
     """Run every config whose key is not yet in ``store``; append each row as it finishes.
+    ``device``: :func:`run_config`'s.
 
     ``scheduler``: None (a local process pool with ``workers`` processes, default ``os.cpu_count()``;
     ``workers=0`` runs in this process), a Dask scheduler address, or a ``distributed.Client``.
@@ -305,7 +319,7 @@ def execute(configs, store: ResultStore | str, *, workers: int | None = None, sc
                 client = Client(scheduler)
             try:
                 _check_cluster_code(client, {c.get("backend", "torch") for _, c in todo})
-                futs = [client.submit(run_config, c, key=f"gendr-run-{k}", pure=False) for k, c in todo]
+                futs = [client.submit(run_config, c, device, key=f"gendr-run-{k}", pure=False) for k, c in todo]
                 for fut in dask_completed(futs):
                     if not fut.cancelled():
                         finish(fut.result())
@@ -318,12 +332,12 @@ def execute(configs, store: ResultStore | str, *, workers: int | None = None, sc
             for _, c in todo:
                 if late():
                     break
-                finish(run_config(c))
+                finish(run_config(c, device))
         else:
             import multiprocessing as mp
             n = workers or os.cpu_count() or 1
             with ProcessPoolExecutor(max_workers=min(n, len(todo)), mp_context=mp.get_context("spawn")) as ex:
-                futs = [ex.submit(run_config, c) for _, c in todo]
+                futs = [ex.submit(run_config, c, device) for _, c in todo]
                 for fut in as_completed(futs):
                     if not fut.cancelled():
                         finish(fut.result())
@@ -480,7 +494,8 @@ def drift_tolerance(row: dict) -> float:
     return DRIFT_TOLERANCE["pose_rotation"]
 
 
-def verify_rows(rows, *, sample: int | None = None, seed: int = 0, tolerance: float | None = None) -> list[dict]:
+def verify_rows(rows, *, sample: int | None = None, seed: int = 0, tolerance: float | None = None,
+                device: str = "cpu") -> list[dict]:
     """Re-run ``sample`` rows (all when None; a seeded random choice otherwise) from their stored
     configs and compare the metrics. The tolerance is 0 when the row's code hash is this code's and it
     ran on this CPU's SIMD level (one thread then reproduces a run exactly; rows that do not record
@@ -489,18 +504,21 @@ def verify_rows(rows, *, sample: int | None = None, seed: int = 0, tolerance: fl
     ``tolerance``, ``ok``, ``same_code``, ``stored_code``, ``code``, ``same_cpu``, ``stored_simd``,
     ``simd``, ``seconds``; for look-at pose rows also ``residual_drift`` (of the median final error,
     degrees) and ``residual_tolerance`` (0 when exact, else DRIFT_TOLERANCE["pose_residual"];
-    ``tolerance`` given applies to the metric only). Rows that ended in an error are skipped."""
+    ``tolerance`` given applies to the metric only). Rows that ended in an error are skipped.
+    ``device``: where the re-runs render (:func:`run_config`); a row made on another device (its
+    provenance's ``device``, "cpu" when absent) is never exact."""
     rows = [r for r in rows if r.get("status") == "ok"]
     if sample is not None and sample < len(rows):
         pick = np.random.default_rng(seed).choice(len(rows), size=sample, replace=False)
         rows = [rows[i] for i in sorted(pick)]
     out = []
     for r in rows:
-        now = run_config(r["config"])
+        now = run_config(r["config"], device)
         same = r.get("code_hash") == now["code_hash"]
         stored_simd = r.get("provenance", {}).get("cpu", {}).get("simd")
         simd = now["provenance"]["cpu"]["simd"]
-        exact = same and stored_simd == simd
+        same_device = r.get("provenance", {}).get("device", "cpu") == device
+        exact = same and stored_simd == simd and same_device
         tol = (0.0 if exact else drift_tolerance(r)) if tolerance is None else float(tolerance)
         a, b = r.get("metric"), now.get("metric")
         drift = abs(a - b) if (a is not None and b is not None) else (0.0 if a is None and b is None else math.inf)
@@ -513,5 +531,6 @@ def verify_rows(rows, *, sample: int | None = None, seed: int = 0, tolerance: fl
             ok = ok and v["residual_drift"] <= v["residual_tolerance"]
         out.append({**v, "ok": ok, "same_code": same,
                     "stored_code": r.get("code_hash"), "code": now["code_hash"], "same_cpu": stored_simd == simd,
-                    "stored_simd": stored_simd, "simd": simd, "seconds": now["seconds"]})
+                    "stored_simd": stored_simd, "simd": simd, "same_device": same_device,
+                    "seconds": now["seconds"]})
     return out
