@@ -78,5 +78,5 @@ pose-full)
         -o "$RESULTS/paper_pose_full.jsonl" "${RUN[@]}"
     ;;
 *)
-    sed -n '2,12p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; exit 2 ;;
+    sed -n '2,13p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; exit 2 ;;
 esac

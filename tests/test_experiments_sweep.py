@@ -169,14 +169,41 @@ def test_verify_rows_asks_exactness_only_on_the_same_simd_level(tmp_path):
     assert gpu["same_cpu"] and not gpu["same_device"] and gpu["tolerance"] == drift_tolerance(row)
 
 
-def test_run_config_device():
-    """device="cuda" is a run-time option of drjit runs: not in the key, recorded in the provenance."""
-    cfg = _configs()[0]
-    row = run_config(cfg, "cuda")  # a torch config
+def test_run_config_device(tmp_path, monkeypatch):
+    """device="cuda" is a run-time option of drjit runs: it reaches the renderer's backend options
+    (shape and pose), every execute path passes it on, and the provenance records it."""
+    import gendr_experiments.pose as pose
+    import gendr_experiments.shape as shape
+    seen = []
+
+    def fake(cfg, *, backend_options=None, **kw):
+        seen.append((cfg["experiment"], backend_options))
+        return {"metric": 0.5}
+    monkeypatch.setattr(shape, "run_shape", fake)
+    monkeypatch.setattr(pose, "run_pose", fake)
+    drjit_cfgs = [dict(c, backend="drjit") for c in _configs()[:2]]
+    rows = execute(drjit_cfgs, tmp_path / "r.jsonl", workers=0, progress=False, device="cuda")
+    assert [r["provenance"]["device"] for r in rows] == ["cuda", "cuda"] and all(r["status"] == "ok" for r in rows)
+    pose_cfg = expand("pose", dict(steps=1, image_size=8, backend="drjit"), instances=[5], axes={})[0]
+    assert run_config(pose_cfg, "cuda")["status"] == "ok" and run_config(pose_cfg)["status"] == "ok"
+    assert seen == [("shape", {"device": "cuda"})] * 2 + [("pose", {"device": "cuda"}), ("pose", None)]
+    row = run_config(_configs()[0], "cuda")  # a torch config
     assert row["status"] == "error" and "needs the drjit backend" in row["error"]
-    assert row["key"] == run_config(cfg)["key"] and row["provenance"]["device"] == "cuda"
     with pytest.raises(ValueError, match="device='tpu'"):
-        run_config(cfg, "tpu")
+        run_config(_configs()[0], "tpu")
+
+
+def test_verify_is_never_exact_on_a_gpu(monkeypatch, tmp_path):
+    """A GPU re-run (Dr.Jit's CUDA backward sums with atomics) gets the other-code tolerance, also
+    for a row that was made on a GPU by the same code."""
+    import gendr_experiments.sweep as sweep
+    (row,) = execute(_configs()[:1], tmp_path / "r.jsonl", workers=0, progress=False)
+    gpu_row = dict(row, provenance=dict(row["provenance"], device="cuda"))
+    monkeypatch.setattr(sweep, "run_config", lambda cfg, device="cpu": dict(
+        row, metric=row["metric"] + 0.001, provenance=dict(row["provenance"], device=device)))
+    (v,) = verify_rows([gpu_row], device="cuda")
+    assert v["same_code"] and v["same_cpu"] and v["same_device"]
+    assert v["tolerance"] == drift_tolerance(row) > 0.001 and v["ok"]
 
 
 def test_execute_starts_nothing_after_the_deadline(tmp_path):

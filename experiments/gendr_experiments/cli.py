@@ -114,9 +114,9 @@ def _instance_options(p):
 
 def _device_option(p):
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
-                   help="cuda: the soft renders on Dr.Jit's CUDA variant (drjit backend; the model, losses, "
-                        "target and hard metric stay on the CPU); rows keep the CPU run's key and record "
-                        "the device (default: %(default)s)")
+                   help="cuda: the soft renders on Dr.Jit's CUDA variant (drjit backend, a CUDA build of "
+                        "torch; the model, losses, target and hard metric stay on the CPU); rows keep the CPU "
+                        "run's key and record the device. Checked here, not on Dask workers (default: %(default)s)")
 
 
 def _check_device(a, backends):
@@ -126,8 +126,11 @@ def _check_device(a, backends):
     if set(backends) != {"drjit"}:
         raise UsageError(f"--device cuda needs the drjit backend (these runs use {sorted(set(backends))})")
     import drjit as dr
+    import torch
     if not dr.has_backend(dr.JitBackend.CUDA):
         raise UsageError("--device cuda: Dr.Jit's CUDA backend is not available on this machine")
+    if not torch.cuda.is_available():  # (the runs' torch tensors are copied to the GPU)
+        raise UsageError("--device cuda: this torch build or machine has no CUDA (install a CUDA build of torch)")
 
 
 def _protocol_options(p):

@@ -221,15 +221,19 @@ def _timer(row):
     return "seconds", float(row["seconds"])
 
 
+def _on_cpu(row) -> bool:
+    """The models are of CPU runs: rows whose renders ran on a GPU (`sweep --device cuda`) are left
+    out of every fit (they still count as done runs)."""
+    return row.get("provenance", {}).get("device", "cpu") == "cpu"
+
+
 def fit_cost_model(rows, *, prior_weight: float = 0.3, k_from: CostModel | None = None) -> CostModel:
     """Fit :class:`CostModel` to finished rows of ONE (experiment, protocol) in log space (the
     relative error of every run counts the same). ``prior_weight`` pulls log k toward 0 (families
     with few rows stay near the others). ``k_from``: take the per-pair factors of this model (the
     same renderer backend's; they are the renderer's, not the experiment's) and fit only c0..c2."""
     from scipy.optimize import least_squares
-    # (a model of CPU runs: rows whose renders ran on a GPU, `sweep --device cuda`, are left out)
-    rows = [r for r in rows if r.get("status") == "ok" and r.get("seconds")
-            and r.get("provenance", {}).get("device", "cpu") == "cpu"]
+    rows = [r for r in rows if r.get("status") == "ok" and r.get("seconds") and _on_cpu(r)]
     if not rows:
         raise ParameterError("no finished rows (of CPU runs) to fit a cost model to")
     groups = {(r["experiment"], r.get("protocol")) for r in rows}
@@ -468,7 +472,8 @@ def cost_report(rows, *, studies=STUDIES, hours: float = 24.0, efficiency: float
     measured against its model's prediction)."""
     from .figures import grid_labels
     from .sweep import full_config
-    all_rows, rows = rows, [r for r in rows if r.get("status") == "ok" and r.get("seconds") and r.get("config")]
+    all_rows, rows = rows, [r for r in rows if r.get("status") == "ok" and r.get("seconds") and r.get("config")
+                            and _on_cpu(r)]
     groups = {}
     for r in rows:
         groups.setdefault((r["experiment"], r.get("protocol") or "quick"), []).append(r)
