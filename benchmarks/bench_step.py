@@ -3,6 +3,7 @@ backward, Adam), per backend and distribution. JSON like bench_render.py.
 
     .venv/bin/python benchmarks/bench_step.py --out out/bench_step.json         # every case
     .venv/bin/python benchmarks/bench_step.py --case pose --dist logistic --backend torch --quick
+    python3 benchmarks/bench_step.py --device cuda --backend drjit --backend drjit-frozen   # on a GPU
 
 Cases (the steps of ``gendr_experiments.shape.ShapeProblem`` and ``gendr_experiments.pose.PoseProblem``):
 
@@ -75,10 +76,14 @@ def versions():
             "python": platform.python_version(), "gendr": gendr.__version__}
 
 
-def first_call(case, backend, dist, threads):
-    """Build the problem and run its first step: (problem, {"setup_ms", "first_step_ms", "first_call_ms"})."""
+def first_call(case, backend, dist, threads, device="cpu"):
+    """Build the problem and run its first step: (problem, {"setup_ms", "first_step_ms", "first_call_ms"}).
+    ``device="cuda"``: the drjit renders on Dr.Jit's CUDA variant; the model, losses and Adam stay
+    on the CPU (as `gendr experiment sweep --device cuda`)."""
     cls, cfg = CASES[case]
     name, options = BACKENDS[backend]
+    if device == "cuda":
+        options = dict(options, device="cuda")
     set_threads(name, threads)  # drjit: torch keeps 1 thread (its idle workers spin)
     t0 = time.perf_counter()
     prob = cls(cfg, backend=name, distribution=dist, tconorm="probabilistic", backend_options=options)
@@ -88,16 +93,17 @@ def first_call(case, backend, dist, threads):
     return prob, {"setup_ms": 1000 * (t1 - t0), "first_step_ms": 1000 * (t2 - t1), "first_call_ms": 1000 * (t2 - t0)}
 
 
-def run_case(case, backend, dist, repeats, threads):
+def run_case(case, backend, dist, repeats, threads, device="cpu"):
     # the first call in a fresh process (drjit: with an empty kernel cache), then the steady state here
     cold = BACKENDS[backend][0] == "drjit" or "compile" in BACKENDS[backend][1]
-    first = run_fresh(__file__, ["--first-call", case, backend, dist, "--threads", str(threads)], cold=cold)
-    prob, _ = first_call(case, backend, dist, threads)
+    first = run_fresh(__file__, ["--first-call", case, backend, dist, "--threads", str(threads), "--device", device],
+                      cold=cold)
+    prob, _ = first_call(case, backend, dist, threads, device)
     counter = itertools.count(1)
     losses = []
     times = measure(lambda: losses.append(prob.step(next(counter))), repeats)  # + 1 warm-up step
     faces = prob.model.faces if case == "shape" else prob.faces
-    out = {"case": case, "backend": BACKENDS[backend][0], "freeze": bool(BACKENDS[backend][1].get("freeze")),
+    out = {"case": case, "backend": BACKENDS[backend][0], "device": device, "freeze": bool(BACKENDS[backend][1].get("freeze")),
            "compile": bool(BACKENDS[backend][1].get("compile")),
            "distribution": dist, "tconorm": "probabilistic", "renderer_tau": prob.renderer.settings.tau_value,
            "faces": int(faces.shape[0]), "threads": threads, "torch_threads": torch.get_num_threads(),
@@ -117,16 +123,20 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="1 timed step per case")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--out", type=Path, help="write the JSON here (also printed)")
+    ap.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
+                    help="cuda: drjit renders on Dr.Jit's CUDA variant (drjit backends only; model and Adam on the CPU)")
     ap.add_argument("--first-call", nargs=3, metavar=("CASE", "BACKEND", "DIST"), help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
+    if a.device == "cuda" and any(not b.startswith("drjit") for b in (a.backend or BACKENDS)):
+        ap.error("--device cuda: give drjit backends only (--backend drjit --backend drjit-frozen)")
     if a.first_call:
-        print(json.dumps(first_call(*a.first_call, a.threads)[1]))
+        print(json.dumps(first_call(*a.first_call, a.threads, a.device)[1]))
         return 0
     result = {"command": " ".join(sys.argv), "machine": machine(), "versions": versions(),
               "loadavg_before": loadavg(), "results": []}
     for case, dist, backend in itertools.product(a.case or CASES, a.dist or DISTS, a.backend or BACKENDS):
         repeats = a.repeats or (1 if a.quick else REPEATS[case, dist])
-        result["results"].append(run_case(case, backend, dist, repeats, a.threads))
+        result["results"].append(run_case(case, backend, dist, repeats, a.threads, a.device))
     result["loadavg_after"] = loadavg()
     emit(result, a.out)
     return 0
