@@ -127,11 +127,11 @@ def main(argv=None):
                     help="cuda: drjit renders on Dr.Jit's CUDA variant (drjit backends only; model and Adam on the CPU)")
     ap.add_argument("--first-call", nargs=3, metavar=("CASE", "BACKEND", "DIST"), help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
-    if a.device == "cuda" and any(not b.startswith("drjit") for b in (a.backend or BACKENDS)):
-        ap.error("--device cuda: give drjit backends only (--backend drjit --backend drjit-frozen)")
-    if a.first_call:
+    if a.first_call:  # (the fresh process of run_case: its backend is in --first-call)
         print(json.dumps(first_call(*a.first_call, a.threads, a.device)[1]))
         return 0
+    if a.device == "cuda" and any(not b.startswith("drjit") for b in (a.backend or BACKENDS)):
+        ap.error("--device cuda: give drjit backends only (--backend drjit --backend drjit-frozen)")
     result = {"command": " ".join(sys.argv), "machine": machine(), "versions": versions(),
               "loadavg_before": loadavg(), "results": []}
     for case, dist, backend in itertools.product(a.case or CASES, a.dist or DISTS, a.backend or BACKENDS):

@@ -122,7 +122,7 @@ def test_device_selection():
     assert img.device.type == "cpu"
     img.sum().backward()
     assert v.grad.device.type == "cpu" and float(v.grad.abs().sum()) > 0
-    with pytest.raises(ParameterError, match="LLVM tensor"):
+    with pytest.raises(ParameterError, match="vertices is a Dr.Jit LLVM array"):
         on_gpu.render(TensorXf64(V.numpy()), F.numpy(), CAM)
     # NumPy vertices: the first input with a device decides (a CPU torch τ: LLVM, the image on the CPU)
     tau_cpu = torch.tensor(0.05, dtype=torch.float64, requires_grad=True)

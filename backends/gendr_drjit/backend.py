@@ -228,10 +228,6 @@ class DrJitBackend:
         """The device ("llvm" or "cuda") a render runs on: ``device=``, else that of the first of
         ``inputs`` (the render's arrays, vertices first) that has one — a Dr.Jit array's backend, a
         torch tensor's device —, else CUDA when available (all NumPy)."""
-        if _is_drjit(inputs[0]) and self.device not in (None, _device_of(inputs[0])):
-            raise ParameterError(f"vertices are a Dr.Jit {_device_of(inputs[0]).upper()} tensor but the drjit backend "
-                                 f"was made with device={self.device!r}: make them with drjit.{self.device}.ad, "
-                                 f"or leave device unset")
         if self.device is not None:
             return self.device
         for x in inputs:
@@ -306,22 +302,19 @@ class DrJitBackend:
         On CUDA, float64 renders run with Dr.Jit's FastMath off (:func:`exact_math`), their backward
         through torch too. A backward that Dr.Jit inputs start outside (``dr.backward``) runs under
         the caller's flags: turn ``dr.JitFlag.FastMath`` off there for float64 gradients."""
+        cam = camera.array_params()
         arrays = [verts.data, colors.data if colors is not None else None, settings.tau,
                   *settings.tconorm.learnable.values(), *settings.distribution.learnable.values(),
-                  *(v for v, _ in camera.array_params().values()),
-                  *((texture[0].data, texture[1].data) if texture is not None else ())]
+                  *(v for v, _ in cam.values()), *((texture[0].data, texture[1].data) if texture is not None else ())]
         device = self.device_for(arrays)
-        T, _ = self.types(device, verts.dtype == "float64")
+        T, ops = self.types(device, verts.dtype == "float64")
         with exact_math(T):
-            out = self._render_inputs(device, settings, verts, faces, camera, colors, per_face, texture, gbuffer)
+            out = self._render_inputs(T, ops, cam, settings, verts, faces, camera, colors, per_face, texture, gbuffer)
             if _exact_math_needed(T) and not _is_torch(out):
                 dr.eval(out)  # (kernels are assembled under the flags in force when they are evaluated)
             return out
 
-    def _render_inputs(self, device, settings, verts, faces, camera, colors, per_face, texture, gbuffer):
-        double = verts.dtype == "float64"
-        T, ops = self.types(device, double)
-        cam = camera.array_params()
+    def _render_inputs(self, T, ops, cam, settings, verts, faces, camera, colors, per_face, texture, gbuffer):
         tau = settings.tau
         # every torch tensor goes through dr.wrap (gradients flow back into torch)
         slots = {}
@@ -347,9 +340,9 @@ class DrJitBackend:
             return self._render(*args0, {}, texture, gbuffer)
         torch = _torch()
         names = list(slots)
-        out_dtype = torch.float64 if double else torch.float32
+        out_dtype = torch.float64 if T.double else torch.float32
         # one dtype for everything (torch's .to is differentiable); CPU tensors for the LLVM device
-        dev = "cuda" if device == "cuda" else "cpu"
+        dev = "cuda" if T.device == "cuda" else "cpu"
         if dev == "cuda" and not torch.cuda.is_available():
             raise BackendUnavailableError("drjit backend: this render runs on CUDA (device='cuda', or Dr.Jit CUDA "
                                           "inputs) but this torch build has no CUDA, so its tensors cannot go there")
