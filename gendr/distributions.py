@@ -1012,9 +1012,11 @@ _LEVY_LO = 5e-4  # F(x) = erfc(sqrt(1/(2x))) < erfc(31.6) ≈ 1e-436: exactly 0 
 
 
 def _levy_z(ops, x):
-    """(x > _LEVY_LO, z = √(1/(2x)) there, else 1/√2)."""
+    """(x > _LEVY_LO, z = √(1/(2x)) there, else 1/√2). z = 0 at x = +inf is a constant: through
+    the square root its gradient would be inf·0 = NaN."""
     pos = x > _LEVY_LO
-    return pos, ops.sqrt(0.5 / ops.where(pos, x, 1.0))
+    finite = x < math.inf
+    return pos, ops.where(finite, ops.sqrt(0.5 / ops.where(pos, ops.where(finite, x, 1.0), 1.0)), 0.0)
 
 
 def _levy_cdf(ops, x):
@@ -1049,8 +1051,9 @@ def _levy_log_cdf(ops, x):
     # accuracy, which log 2 + log Q(z·√2) loses to cancellation), else log 2 + log Q(z·√2);
     # x held >= 1e-30 (value −5e29 there)
     pos = x > 0.0
-    xs = ops.where(pos, ops.where(x > 1e-30, x, 1e-30), 1.0)
-    w = ops.sqrt(1.0 / xs)  # z·√2
+    finite = x < math.inf  # w = 0 there as a constant (as in _levy_z)
+    xs = ops.where(pos, ops.where(x > 1e-30, ops.where(finite, x, 1.0), 1e-30), 1.0)
+    w = ops.where(finite, ops.sqrt(1.0 / xs), 0.0)  # z·√2
     near_one = w < 0.5 * math.sqrt(2.0)
     val = ops.branch(near_one, lambda w: ops.log1p(-ops.erf(ops.where(near_one, w, 0.0) * math.sqrt(0.5))),
                      lambda w: _LN2 + _gaussian_log_sf(ops, ops.where(near_one, 1.0, w)), w)

@@ -16,6 +16,7 @@ import gendr
 from gendr.distributions import (DISTRIBUTIONS, BOUNDED, EXPONENTIAL, HEAVY, Distribution,
                                  distribution, _GAMMA_SWITCH)
 from gendr.errors import ParameterError, UnknownNameError
+from gendr.grid import DISTRIBUTION_SETTINGS
 from gendr.ops import numpy_ops as O
 
 pytestmark = pytest.mark.filterwarnings("ignore::RuntimeWarning")
@@ -574,6 +575,30 @@ def test_limits_at_infinity(d):
     F, log_sf = d.cdf_and_log_sf(O, np.array([-np.inf, np.inf]))
     assert F[0] == 0.0 and F[1] == 1.0 and log_sf[0] == 0.0 and log_sf[1] < -40.0, (F, log_sf)
     np.testing.assert_array_equal(d.cdf(O, np.array([-np.inf, np.inf])), [0.0, 1.0])
+
+
+GRID_DISTRIBUTIONS = [distribution(n, reversed=rev, squared=sq, **p)
+                      for n, p, rev in DISTRIBUTION_SETTINGS for sq in (False, True)]
+
+
+@pytest.mark.parametrize("d", GRID_DISTRIBUTIONS, ids=ids)
+def test_torch_gradients_of_finite_values_at_infinity_are_finite(d):
+    """Where F or log(1 − F) of a grid distribution is finite at x = ±inf, its torch gradient is
+    too (0: the value is a limit there). Before, Lévy's F at +inf and the reversed Lévy's
+    log(1 − F) at −inf had NaN gradients (√ of 1/x at 0: inf·0). A −inf log(1 − F) (e.g. Gaussian
+    at +inf) is left out: its slope has no finite limit. So are the reversed symmetric families
+    outside the grid (Gaussian, Cauchy reversed), whose F at −inf is exp(−inf) of such a log.
+    (The renderer never evaluates ±inf: τ must be a normal float, culling skips far pairs.)"""
+    torch = pytest.importorskip("torch")
+    from gendr_torch.ops import torch_ops
+    for dtype in (torch.float32, torch.float64):
+        for end in (-np.inf, np.inf):  # one lane each: a masked lane's 0·NaN would blame the other
+            x = torch.tensor([end], dtype=dtype, requires_grad=True)
+            F, log_sf = d.cdf_and_log_sf(torch_ops, x)
+            for name, value in (("F", F), ("log_sf", log_sf), ("cdf", d.cdf(torch_ops, x))):
+                if torch.isfinite(value).all():
+                    (g,) = torch.autograd.grad(value.sum(), x, retain_graph=True)
+                    assert torch.isfinite(g).all(), (name, end, dtype, g)
 
 
 @pytest.mark.parametrize("k", [0.5, 2.0, 3.0, 1.7])
