@@ -139,6 +139,27 @@ def test_resume_refuses_rows_of_other_code(tmp_path):
         execute(cfgs, path, workers=0, progress=False, other_code="maybe")
 
 
+def test_a_run_during_which_the_source_changed_is_an_error_row(tmp_path, monkeypatch):
+    """A row records the hash of the code its process imported; if the files on disk differ when
+    the run ends (an edit during a sweep), or the sweep started with another hash than this process
+    runs, which code ran is unknown: the row is an error (rerun by --retry-errors), not a result
+    under the wrong hash. (Before, the hash was read once, at the end of a worker's first run.)"""
+    import gendr_experiments.sweep as sweep
+    here = source_hash("torch")
+    cfgs = _configs()[:2]
+    assert run_config(cfgs[0], code_hash=here)["status"] == "ok"
+    (other,) = [run_config(cfgs[0], code_hash="e" * 16)]
+    assert other["status"] == "error" and other["metric"] is None
+    assert "CodeChangedError" in other["error"] and "e" * 16 in other["error"] and other["code_hash"] == here
+    monkeypatch.setattr(sweep, "read_source_hash", lambda backend="torch": "d" * 16)  # edited mid-run
+    rows = execute(cfgs, tmp_path / "r.jsonl", workers=0, progress=False)
+    assert [r["status"] for r in rows] == ["error", "error"]
+    assert all("d" * 16 in r["error"] and r["code_hash"] == here for r in rows)
+    monkeypatch.undo()
+    rows = execute(cfgs, tmp_path / "r.jsonl", workers=0, progress=False, retry_errors=True)
+    assert [r["status"] for r in rows] == ["ok", "ok"]
+
+
 def test_verify_rows_reports_drift(tmp_path):
     path = tmp_path / "r.jsonl"
     rows = execute(_configs()[:2], path, workers=0, progress=False)

@@ -436,7 +436,14 @@ def _package_dir(module: str) -> Path:
 def source_hash(backend: str = "torch") -> str:
     """16 hex digits of sha256 over the Python source that computes a result: the packages ``gendr``,
     the backend's package (from its entry point) and ``gendr_experiments`` (every ``*.py``, by
-    relative path and bytes). Any edit to that code changes it; docs, tests and benchmarks do not."""
+    relative path and bytes). Any edit to that code changes it; docs, tests and benchmarks do not.
+    Read from disk once per process (:func:`read_source_hash` reads it again)."""
+    return read_source_hash(backend)
+
+
+def read_source_hash(backend: str = "torch") -> str:
+    """:func:`source_hash` read from the files now, not cached: a run compares it with the hash its
+    sweep started with, so that an edit made while it ran cannot go unnoticed."""
     eps = gendr.available_backends()
     if backend not in eps:
         raise ParameterError(f"unknown backend {backend!r}; registered: {sorted(eps)}")
@@ -501,11 +508,11 @@ def cpu_info() -> dict:
     return {"model": model, "simd": torch.backends.cpu.get_cpu_capability()}
 
 
-def provenance(backend: str, device: str = "cpu") -> dict:
+def provenance(backend: str, device: str = "cpu", code_hash: str | None = None) -> dict:
     """What a result row records about the code and machine that made it: versions, the source hash
-    (:func:`source_hash`), backend, device ("cpu", or "cuda" with the GPU's name), dtype, thread
-    counts and the CPU (:func:`cpu_info`)."""
-    out = {"code_hash": source_hash(backend), "backend": backend, "device": device, "dtype": "float32",
+    (``code_hash``, default :func:`source_hash`), backend, device ("cpu", or "cuda" with the GPU's
+    name), dtype, thread counts and the CPU (:func:`cpu_info`)."""
+    out = {"code_hash": code_hash or source_hash(backend), "backend": backend, "device": device, "dtype": "float32",
            "torch_threads": torch.get_num_threads(), "machine": platform.machine(), "cpu": cpu_info(),
            "git_commit": git_commit(), "versions": versions()}
     if backend == "drjit":

@@ -30,7 +30,7 @@ import numpy as np
 
 from gendr.errors import GendrError, ParameterError
 
-from .common import config_hash, provenance, source_hash
+from .common import config_hash, provenance, read_source_hash, source_hash
 
 __all__ = ["EXPERIMENTS", "OtherCodeError", "SchedulerUnreachableError", "full_config", "expand", "run_config",
            "ResultStore", "execute", "load_rows", "aggregate", "best_setting_search", "fine_grid", "summarize_best", "write_csv", "verify_rows",
@@ -107,11 +107,17 @@ def _single_thread():
         pass
 
 
-def run_config(cfg: dict, device: str = "cpu") -> dict:
+def run_config(cfg: dict, device: str = "cpu", code_hash: str | None = None) -> dict:
     """Run one config (in any process) and return its result row: the metrics, the config, and the
     provenance (:func:`~gendr_experiments.common.provenance`: versions, source hash, backend,
     device, dtype, threads). One thread, so a run gives the same numbers wherever it runs.
     Exceptions become rows with ``status="error"``.
+
+    The row's ``code_hash`` is this process's (:func:`~gendr_experiments.common.source_hash`, read
+    when it first ran). The run is an error row (``CodeChangedError``) if the source on disk differs
+    from it when the run ends, or from ``code_hash``, the hash the calling sweep checked its
+    finished rows against: a file edited while a sweep runs would otherwise be recorded under a hash
+    of code that did not run.
 
     ``device="cuda"`` (drjit backend only) runs the soft renders of the optimisation on Dr.Jit's
     CUDA variant; the model, losses, Adam, the target silhouettes and the hard IoU metric stay on
@@ -121,6 +127,8 @@ def run_config(cfg: dict, device: str = "cpu") -> dict:
         raise ParameterError(f"device={device!r} must be one of {DEVICES}")
     _single_thread()
     from .common import instance_from_config
+    backend = cfg.get("backend", "torch")
+    ran_with = source_hash(backend)  # before this run's lazy imports (backend, shape / pose)
     t0, c0 = time.perf_counter(), time.process_time()
     row = {"key": config_hash(cfg), "experiment": cfg["experiment"], "instance": cfg.get("instance"),
            "protocol": cfg.get("protocol")}
@@ -149,8 +157,14 @@ def run_config(cfg: dict, device: str = "cpu") -> dict:
     row["seconds"] = time.perf_counter() - t0
     row["cpu_seconds"] = time.process_time() - c0  # beside wall seconds: what a run costs on a shared machine
     row["config"] = cfg
-    row["provenance"] = provenance(cfg.get("backend", "torch"), device)
-    row["code_hash"] = row["provenance"]["code_hash"]
+    row["provenance"] = provenance(backend, device, ran_with)
+    row["code_hash"] = ran_with
+    on_disk = read_source_hash(backend)
+    if on_disk != ran_with or (code_hash is not None and code_hash != ran_with):
+        row.update(status="error", metric=None,
+                   error=f"CodeChangedError: the source changed while this sweep ran: code_hash {ran_with} "
+                         f"in this process, {code_hash or ran_with} when the sweep started, {on_disk} on disk "
+                         f"now; which code ran is unknown: run it again")
     row["finished_at"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
     return _clean(row)
 
@@ -288,8 +302,9 @@ def execute(configs, store: ResultStore | str, *, workers: int | None = None, sc
         keyed.setdefault(config_hash(c), c)
     finished = {r["key"]: r for r in store.rows()
                 if r["key"] in keyed and not (retry_errors and r.get("status") == "error")}
-    stale = {k: r.get("code_hash") for k, r in finished.items()
-             if r.get("code_hash") != source_hash(keyed[k].get("backend", "torch"))}
+    def sweep_hash(c):  # what the finished rows are checked against; each run checks it again
+        return source_hash(c.get("backend", "torch"))
+    stale = {k: r.get("code_hash") for k, r in finished.items() if r.get("code_hash") != sweep_hash(keyed[k])}
     if stale and other_code == "refuse":
         here = sorted({source_hash(keyed[k].get("backend", "torch")) for k in stale})
         raise OtherCodeError(
@@ -319,7 +334,8 @@ def execute(configs, store: ResultStore | str, *, workers: int | None = None, sc
                 client = Client(scheduler)
             try:
                 _check_cluster_code(client, {c.get("backend", "torch") for _, c in todo})
-                futs = [client.submit(run_config, c, device, key=f"gendr-run-{k}", pure=False) for k, c in todo]
+                futs = [client.submit(run_config, c, device, sweep_hash(c), key=f"gendr-run-{k}", pure=False)
+                        for k, c in todo]
                 for fut in dask_completed(futs):
                     if not fut.cancelled():
                         finish(fut.result())
@@ -332,12 +348,12 @@ def execute(configs, store: ResultStore | str, *, workers: int | None = None, sc
             for _, c in todo:
                 if late():
                     break
-                finish(run_config(c, device))
+                finish(run_config(c, device, sweep_hash(c)))
         else:
             import multiprocessing as mp
             n = workers or os.cpu_count() or 1
             with ProcessPoolExecutor(max_workers=min(n, len(todo)), mp_context=mp.get_context("spawn")) as ex:
-                futs = [ex.submit(run_config, c, device) for _, c in todo]
+                futs = [ex.submit(run_config, c, device, sweep_hash(c)) for _, c in todo]
                 for fut in as_completed(futs):
                     if not fut.cancelled():
                         finish(fut.result())
