@@ -91,11 +91,33 @@ def test_tune_within_budget_ranks_instances(tmp_path):
     rows = load_rows(store)
     assert len(rows) == res.runs >= 2 and all(r["status"] == "ok" for r in rows)
     assert res.plan["coarse_instances"] >= 1
+    # "tried" = the whole coarse grid finished (a stage cut by the deadline does not count)
+    coarse_taus = {}
+    for r in rows:
+        coarse_taus.setdefault(r["instance"], set()).add(r["tau"])
+    assert res.plan["coarse_instances"] == sum({0.1, 0.02} <= t for t in coarse_taus.values())
     # resume: finished runs are not run again (every key once in the file)
     n = len(store.read_text().splitlines())
     again = tune("tetrahedron", budget=3.0, store=store, base=dict(TINY, steps=2), workers=0,
                  taus=(0.1, 0.02), fine_steps=(-0.25, 0.25))
     assert len(store.read_text().splitlines()) == len(load_rows(store)) == n + again.runs
+
+
+def test_tune_says_so_when_not_even_the_probe_finishes(tmp_path, monkeypatch):
+    """Runs of ~1 s and a 2 s budget: the probe's first runs finish, its third does not start.
+    Before, this fell through the rounds loop to an UnboundLocalError."""
+    import time
+    import gendr_experiments.sweep as sweep
+    real = sweep.run_config
+
+    def slow(*args, **kw):
+        time.sleep(1.0)
+        return real(*args, **kw)
+    monkeypatch.setattr(sweep, "run_config", slow)
+    with pytest.raises(ParameterError, match=r"no candidate's coarse grid \(3 runs\) finished within budget=2.0"):
+        tune("tetrahedron", budget=2.0, store=tmp_path / "t.jsonl", base=dict(TINY, steps=2), workers=0,
+             taus=(0.1, 0.03, 0.01))
+    assert 1 <= len(load_rows(tmp_path / "t.jsonl")) < 3  # what finished is kept (a resume skips it)
 
 
 def test_tune_does_not_rerun_a_coarse_tau(tmp_path):

@@ -8,7 +8,9 @@ user's own target — a mesh file, a built-in scene, or silhouette images with t
 
 1. probe: the first candidate's coarse runs, which also time this machine and problem;
 2. coarse: as many further candidates (in an order whose every prefix spreads over distributions,
-   T-conorms and plain/squared) as the cost model predicts to fit in 60 % of what is left;
+   T-conorms and plain/squared) as the cost model predicts to fit in 60 % of what is left (the
+   stage also stops there, so a slower machine than predicted still leaves time to refine); a
+   candidate counts as tried once its whole coarse grid has finished;
 3. fine: the finer τ grid for the best instances not refined yet (the top quarter of the coarse
    ranking, at least ``top``), best first, as many as fit in the rest;
 
@@ -238,27 +240,31 @@ def tune(target: str, *, budget: float, store="tune.jsonl", protocol: str = "qui
     plan = {"budget_s": float(budget), "candidates": len(cands), "coarse_taus": taus, "lrs": lrs,
             "seeds": seeds, "fine_steps": list(fine_steps)}
 
-    def run_stage(configs, name):
+    def run_stage(configs, name, until):
         nonlocal overhead
         if not configs:
             return []
         t0 = time.monotonic()
         done0 = {r["key"] for r in st.rows()}
         typical = np.median([cal.predict(feats(c)) for c in configs]) if cal.a is not None else 0.0
-        rows = execute(configs, deadline=deadline - 0.5 * typical, **kw)
+        execute(configs, deadline=until - 0.5 * typical, **kw)
         new = [r for r in st.rows() if r["key"] not in done0]  # in the order they finished
         if workers != 0 or not warm:  # a new pool (or this process's first runs): its first runs warm up
             warm.update(r["key"] for r in new[:parallel])
         if new and workers != 0 and cal.a is not None:  # beyond the runs' predicted time: start-up, warm-up
             overhead = max(overhead, time.monotonic() - t0 - sum(cal.predict(feats(r["config"])) for r in new) / parallel)
         say(f"{name}: {len(new)} runs in {time.monotonic() - t0:.1f} s")
-        return rows
+        return new
 
     def fits(configs, seconds_left):
         return sum(cal.predict(feats(c)) for c in configs) / parallel + overhead <= seconds_left
 
+    def pending(configs):
+        done_keys = {r["key"] for r in st.rows()}
+        return [c for c in configs if _key(c) not in done_keys]
+
     # 1. probe: the first candidate's coarse runs time this machine and problem
-    run_stage(coarse[cands[0]], "probe (first candidate, coarse grid)")
+    run_stage(coarse[cands[0]], "probe (first candidate, coarse grid)", deadline)
     cal.fit(_rows_of(st, coarse[cands[0]]), feats, warm)
     if workers != 0:
         probe = _rows_of(st, coarse[cands[0]])
@@ -269,58 +275,58 @@ def tune(target: str, *, budget: float, store="tune.jsonl", protocol: str = "qui
              f"a={cal.a:.2f} s, b={cal.b:.3g} s per billion pairs")
     say(f"cost: ~{cal.predict(feats(coarse[cands[0]][0])):.2f} s per run ({model})")
     # rounds until the budget or the candidates run out:
-    # 2. the coarse grid for as many further candidates as fit in COARSE_SHARE of what is left;
+    # 2. the coarse grid for as many further candidates as fit in COARSE_SHARE of what is left (that
+    #    share is also the stage's deadline: a slower machine than predicted still leaves the rest);
     # 3. the fine τ grid for the best coarse instances not refined yet (the top ``refine_share`` of the
     #    ranking, at least ``top``), best first, as many as fit in the rest.
-    chosen, refined = [cands[0]], {}
+    # A candidate counts as tried once its whole coarse grid has finished (a stage cut by its
+    # deadline leaves some halfway: the next round, or a resumed tune, completes them).
+    refined = {}
     rounds = 0
     while time.monotonic() < deadline:
         rounds += 1
         ran = 0
         left = deadline - time.monotonic()
         todo, new = [], []
-        done_keys = {r["key"] for r in st.rows()}
         for i in cands:
-            if i in chosen:
-                continue
-            pending = [c for c in coarse[i] if _key(c) not in done_keys]
-            if fits(todo + pending, COARSE_SHARE * left):
-                todo += pending
+            missing = pending(coarse[i])
+            if missing and fits(todo + missing, COARSE_SHARE * left):
+                todo += missing
                 new.append(i)
-        chosen += new
         if new:
-            say(f"round {rounds}, coarse: {len(new)} more candidates ({len(chosen)} of {len(cands)}) × {len(taus)} τ × "
-                f"{len(lrs)} lr × {len(seeds)} seed")
-            ran += len(run_stage(todo, "coarse"))
-        all_coarse = [c for i in chosen for c in coarse[i]]
+            say(f"round {rounds}, coarse: {len(new)} more candidates × {len(taus)} τ × {len(lrs)} lr × {len(seeds)} seed")
+            ran += len(run_stage(todo, "coarse", time.monotonic() + COARSE_SHARE * left))
+        tried = [i for i in cands if not pending(coarse[i])]
+        all_coarse = [c for i in tried for c in coarse[i]]
         cal.fit(_rows_of(st, all_coarse + [c for cfgs in refined.values() for c in cfgs]), feats, warm)
         best = summarize_best(_rows_of(st, all_coarse), "shape")
         order = sorted(best, key=lambda i: best[i]["score"])
         order = [i for i in order[:max(int(top), math.ceil(REFINE_SHARE * len(order)))] if i not in refined]
         left = deadline - time.monotonic()
         fine, picked = [], {}
-        done_keys = {r["key"] for r in st.rows()}
         for i in order:
             b = best[i]
             cfgs = expand("shape", base, instances=[spec_of[i]],
                           axes={"tau": fine_grid(b["tau"], fine_steps, taus), "lr": [b["lr"]], "seed": seeds})
-            pending = [c for c in cfgs if _key(c) not in done_keys]
-            if left > 0 and fits(fine + pending, left):
-                fine += pending
+            missing = pending(cfgs)
+            if left > 0 and fits(fine + missing, left):
+                fine += missing
                 picked[i] = cfgs
         if picked:
             say(f"round {rounds}, fine: {len(picked)} instances × {len(fine_steps)} τ around their best")
-            run_stage(fine, "fine")
-            refined.update(picked)
-            ran += len(picked)
+            ran += len(run_stage(fine, "fine", deadline))
+            refined.update((i, c) for i, c in picked.items() if not pending(c))
         if not ran:
             break
-    skipped = [i for i in cands if i not in chosen]
+    tried = [i for i in cands if not pending(coarse[i])]
+    if not tried:
+        raise ParameterError(f"tune: no candidate's coarse grid ({len(coarse[cands[0]])} runs) finished within "
+                             f"budget={budget!r} s; raise --budget (finished runs resume)")
+    skipped = [i for i in cands if i not in tried]
     if skipped:
         say(f"{len(skipped)} of {len(cands)} candidates not tried: raise --budget to try them (resumes)")
-    plan.update(rounds=rounds, coarse_instances=len(chosen), fine_instances=len(refined),
-                runs=sum(1 for _ in _rows_of(st, all_coarse + [c for cfgs in refined.values() for c in cfgs])))
-    mine = all_coarse + [c for cfgs in refined.values() for c in cfgs]
+    mine = [c for i in tried for c in coarse[i]] + [c for cfgs in refined.values() for c in cfgs]
+    plan.update(rounds=rounds, coarse_instances=len(tried), fine_instances=len(refined), runs=len(_rows_of(st, mine)))
     final = summarize_best(_rows_of(st, mine), "shape")
     refined_set = set(refined)
     ranking = [dict(instance=i if isinstance(i, int) else None, label=b["label"], tau=b["tau"], lr=b["lr"],
