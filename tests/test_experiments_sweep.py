@@ -84,6 +84,22 @@ def test_best_setting_search_refines_tau(tmp_path):
     assert summarize_best(rows) == best
 
 
+def test_lookat_pose_ties_are_broken_by_the_mean_final_error():
+    """Two settings with the same failure rate: the one whose pairs ended nearer wins (the docs'
+    "ties broken by mean error"; before, the first in the file did). A pair without a finite error
+    counts as 180°."""
+    def row(lr, residuals, successes):
+        return {"experiment": "pose", "instance": 7, "label": "x", "tau_start": 0.1, "lr": lr, "status": "ok",
+                "metric": 1 - successes / 2, "pairs": 2, "successes": successes, "residual_deg": residuals,
+                "seconds": 1.0, "config": {"pairs": 2}}
+    far, near = row(0.1, [40.0, 1.0], 1), row(0.3, [4.0, 2.0], 1)
+    assert summarize_best([far, near])[7]["lr"] == 0.3 and summarize_best([near, far])[7]["lr"] == 0.3
+    unknown = row(0.3, [None, 2.0], 1)  # a diverged pair: worse than 40° of the other setting
+    assert summarize_best([unknown, far])[7]["lr"] == 0.1
+    better = row(0.5, [90.0, 90.0], 2)  # more successes beat any error
+    assert summarize_best([far, near, better])[7]["lr"] == 0.5
+
+
 def test_fine_grid_names_coarse_tau_exactly():
     """A fine τ that is the best or a coarse τ (step 0 of the paper's 21 steps; a squared width's
     ±0.5-decade neighbours) must be that τ exactly, not a 6-digit rounding of it (a new key: a rerun)."""

@@ -389,8 +389,8 @@ def _check_cluster_code(client, backends):
 def aggregate(rows) -> dict:
     """Mean over seeds (and elevations, bins) of the runs of one setting. ``score``: lower is better —
     the mean hard IoU loss (shape) or the failure rate 1 − success rate over all pairs, ties broken
-    by the mean error (pose). Failed/non-finite runs count as the worst value (IoU loss 1, every
-    pair failed)."""
+    by the mean final error over all pairs (pose). Failed/non-finite runs count as the worst value
+    (IoU loss 1, every pair failed, an error of 180°)."""
     rows = list(rows)
     exp = rows[0]["experiment"]
     vals = [r["metric"] if r.get("metric") is not None else (1.0 if exp == "shape" else 180.0) for r in rows]
@@ -400,13 +400,19 @@ def aggregate(rows) -> dict:
         if any("pairs" in r for r in rows):  # lookat rows: a batch of pairs each
             pairs = sum(int(r.get("pairs") or r["config"].get("pairs", 1)) for r in rows)
             sr = sum(int(r.get("successes") or 0) for r in rows) / pairs
-            out.update(pairs=pairs, success_rate=sr, score=1.0 - sr)
+            err = [_finite_or(e, 180.0) for r in rows
+                   for e in (r.get("residual_deg") or [None] * int(r.get("pairs") or r["config"].get("pairs", 1)))]
+            out.update(pairs=pairs, success_rate=sr, score=(1.0 - sr) + 1e-6 * float(np.mean(err)) / 180.0)
         else:
             sr = float(np.mean([bool(r.get("success")) for r in rows]))
             out.update(success_rate=sr, score=(1.0 - sr) + 1e-6 * out["mean_metric"] / 180.0)
     else:
         out["score"] = out["mean_metric"]
     return out
+
+
+def _finite_or(x, worst):
+    return float(x) if x is not None and math.isfinite(x) else worst
 
 
 def _group(rows, keys):
