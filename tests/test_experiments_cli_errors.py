@@ -105,13 +105,25 @@ def test_check_config_names_the_setting(key, value):
      "tune: setting target='cube' (base, CLI --set) is set by tune's target (CLI --target)"),
     (["tune", "--target", "icosphere", "--budget", "10", "--set", "lr=0.1", "-o", "{dir}/t.jsonl"],
      "is set by tune's lrs (CLI --lrs)"),
+    # (each was a traceback, a run finished before the error, or "0 runs" with exit 0)
+    (["pose", "--runs", "0"], "--runs must be >= 1, got 0"),
+    (["shape", "--gif", "{dir}"], "is a directory; name the file to write"),
+    (["shape", "--output-mesh", "{dir}"], "is a directory; name the file to write"),
+    (["shape", "--gif", "{dir}/g.gif", "--gif-views", "0"], "--gif-views and --gif-every must be >= 1"),
+    (["sweep", "--instances", "5", "--seeds", ",", "-o", "{dir}/s.jsonl"], "--seeds lists no values: got ','"),
+    (["tune", "--target", "icosphere", "--budget", "10", "--lrs", ",", "-o", "{dir}/t.jsonl"], "--lrs lists no values"),
+    (["sweep", "--instances", "5", "--scheduler", "tcp://127.0.0.1:99999", "-o", "{dir}/s.jsonl"],
+     "Port out of range"),
+    (["figures", "{errors}", "-o", "{dir}/figs"], "no finished rows (every run ended in an error)"),
 ])
 def test_results_files_and_outputs_are_checked_before_any_work(tmp_path, capsys, argv, words):
     (tmp_path / "notrow.jsonl").write_text("[1, 2]\n")
     (tmp_path / "notes.csv").write_text("key,metric\n")
     (tmp_path / "rows.jsonl").write_text(json.dumps({"key": "k", "experiment": "shape", "status": "ok"}) + "\n")
+    (tmp_path / "errors.jsonl").write_text(json.dumps({"key": "k", "experiment": "shape", "status": "error",
+                                                        "metric": None, "instance": 5, "label": "x"}) + "\n")
     paths = {"missing": tmp_path / "missing.jsonl", "dir": tmp_path, "notrow": tmp_path / "notrow.jsonl",
-             "rows": tmp_path / "rows.jsonl"}
+             "rows": tmp_path / "rows.jsonl", "errors": tmp_path / "errors.jsonl"}
     before = sorted(p.name for p in tmp_path.iterdir())
     code = gendr_main(["experiment", *[a.format(**paths) for a in argv]])
     err = capsys.readouterr().err
@@ -140,6 +152,7 @@ def test_help_shows_each_default_once(capsys):
     (["recon", "--synthetic", "--classes", "cube,"], "an empty class id"),
     (["recon", "--synthetic", "--eval-split", "test"], "makes the splits train and val, not ['test']"),
     (["recon", "--data", "{dir}"], "lacks 02691156_train_images.npz"),
+    (["recon", "--synthetic", "--subdivisions", "-1"], "--subdivisions must be in [0, 8], got -1"),
 ])
 def test_recon_options_are_checked_before_anything_is_written(tmp_path, capsys, argv, words):
     """(each failed after generating data or training, leaving the -o folder behind)"""

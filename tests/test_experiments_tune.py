@@ -56,6 +56,11 @@ def test_images_target_with_eye_and_intrinsics(tmp_path):
     (dict(images=np.zeros((2, 4, 4)), azimuth=0.0, elevation=0.0, distance=3.0, fov_y=300.0), InputValueError,
      "fov_y"),
     (dict(pictures=np.zeros((2, 4, 4))), InputValueError, "'images'"),
+    # (a raw TypeError / ValueError before)
+    (dict(images=np.zeros((2, 4, 4)), azimuth=0.0, elevation=0.0, distance=3.0, fov_y=30.0, near=[0.1, 0.1]),
+     InputValueError, "near must be one real number, got [0.1, 0.1]"),
+    (dict(images=np.zeros((2, 4, 4)), azimuth=0.0, elevation=0.0, distance=3.0, fov_y=30.0, far="x"),
+     InputValueError, "far must be one real number"),
 ])
 def test_bad_images_files_raise_typed_errors_naming_the_value(tmp_path, arrays, error, words):
     np.savez(tmp_path / "bad.npz", **arrays)

@@ -26,9 +26,16 @@ class UsageError(ValueError):
 
 def _floats(text, option="a list option"):
     try:
-        return [float(x) for x in text.split(",") if x.strip()]
+        out = [float(x) for x in text.split(",") if x.strip()]
     except ValueError:
         raise UsageError(f"{option} expects comma-separated numbers, got {text!r}") from None
+    return _some(out, text, option)
+
+
+def _some(values, text, option):
+    if not values:  # an empty grid axis would mean zero runs, reported as success
+        raise UsageError(f"{option} lists no values: got {text!r}")
+    return values
 
 
 def _ints(text, option="a list option"):
@@ -49,7 +56,7 @@ def _ints(text, option="a list option"):
             if isinstance(exc, UsageError):
                 raise
             raise UsageError(f"{option} expects integers and ranges like 0-26,54, got {part!r}") from None
-    return out
+    return _some(out, text, option)
 
 
 def _bins(text):
@@ -193,12 +200,17 @@ def cmd_shape(a) -> int:
     from .shape import run_shape, shape_config, shape_target_views
     from .figures import silhouette_frame, write_gif
     _apply_data(a)
+    if a.gif_views < 1 or a.gif_every < 1:
+        raise UsageError(f"--gif-views and --gif-every must be >= 1, got {a.gif_views} and {a.gif_every}")
+    for path, option in ((a.gif, "--gif"), (a.output_mesh, "--output-mesh")):  # (their folders are made)
+        if path is not None and Path(path).is_dir():
+            raise UsageError(f"{option} {str(path)!r} is a directory; name the file to write")
     cfg = shape_config(_instance_config(a), **_given(a, SHAPE_OPTIONS))
     set_threads(cfg["backend"], a.threads)
     frames = []
 
     def keep_frame(step, v, sil, loss):
-        if step % max(1, a.gif_every) == 0:
+        if step % a.gif_every == 0:
             frames.append(sil.numpy())
     res = run_shape(cfg, callback=keep_frame if a.gif else None)
     if a.gif:
@@ -226,6 +238,8 @@ def cmd_pose(a) -> int:
     from .common import set_threads
     from .pose import pose_config, run_pose
     _apply_data(a)
+    if a.runs < 1:
+        raise UsageError(f"--runs must be >= 1, got {a.runs}")
     cfg = pose_config(_instance_config(a), **_given(a, POSE_OPTIONS))
     set_threads(cfg["backend"], a.threads)
     results = []
@@ -516,6 +530,8 @@ def cmd_figures(a) -> int:
     rows = _results(a.results, a.experiment)
     if not rows:
         return _no_rows(a.results, f"{a.experiment} rows" if a.experiment else "rows")
+    if not any(r.get("status") == "ok" for r in rows):
+        return _no_rows(a.results, "finished rows (every run ended in an error)")
     for p in make_figures(rows, a.output, experiment=a.experiment, fraction=a.fraction):
         print(p)
     return 0

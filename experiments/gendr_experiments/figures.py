@@ -221,7 +221,7 @@ def make_figures(rows, outdir, *, experiment=None, fraction=0.1) -> list[Path]:
         if exp == "pose" and not lookat:  # look-at rows' metric is the failure rate itself
             written.append(plot_heatmap(best, outdir / f"{exp}_heatmap_error.png", key="mean_metric",
                                         title="pose: mean final angular error (degrees)"))
-        written.append(plot_top_histograms(best, outdir / f"{exp}_top{int(fraction * 100)}.png", fraction=fraction))
+        written.append(plot_top_histograms(best, outdir / f"{exp}_top{round(fraction * 100, 6):g}.png", fraction=fraction))
         tau_key = EXPERIMENTS[exp]
         csv = outdir / f"{exp}_best.csv"
         with open(csv, "w") as f:

@@ -215,6 +215,19 @@ def shape_findings(rows, noise: float = 0.03) -> list[Finding]:
     return out
 
 
+def _average_ranks(values) -> np.ndarray:
+    """Ranks 0..n-1, tied values sharing their mean rank (Spearman's convention: the order of ties
+    in the input must not matter)."""
+    v = np.asarray(values, dtype=float)
+    order = np.argsort(v, kind="stable")
+    ranks = np.empty(len(v))
+    ranks[order] = np.arange(len(v), dtype=float)
+    for value in np.unique(v[np.isfinite(v)]):
+        tied = v == value
+        ranks[tied] = ranks[tied].mean()
+    return ranks
+
+
 def pose_similarity(shape_rows, pose_rows) -> Finding:
     """'pose similar to shape': Spearman rank correlation of the best scores of the instances both
     sweeps ran."""
@@ -224,9 +237,8 @@ def pose_similarity(shape_rows, pose_rows) -> Finding:
     claim = "pose optimisation behaves like shape optimisation"
     if len(common) < 10:  # a rank correlation over fewer instances says little
         return Finding(claim, "not testable", f"{len(common)} instances in both sweeps")
-    a = np.argsort(np.argsort([s[i]["score"] for i in common]))
-    b = np.argsort(np.argsort([p[i]["score"] for i in common]))
-    rho = float(np.corrcoef(a, b)[0, 1])
+    rho = float(np.corrcoef(_average_ranks([s[i]["score"] for i in common]),
+                            _average_ranks([p[i]["score"] for i in common]))[0, 1])
     verdict = "reproduced" if rho > 0.5 else "contradicted" if rho < 0.2 else "partly"
     return Finding(claim, verdict, f"Spearman rank correlation {rho:.2f} over {len(common)} instances")
 

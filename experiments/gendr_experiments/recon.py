@@ -376,6 +376,8 @@ def check_cli(a) -> None:
             raise ParameterError(f"{option} must be a finite number > 0, got {value}")
     if a.render_size is not None and a.render_size < 1:
         raise ParameterError(f"--render-size must be >= 1, got {a.render_size}")
+    if not 0 <= a.subdivisions <= 8:  # the template icosphere's domain (gendr.scenes.icosphere)
+        raise ParameterError(f"--subdivisions must be in [0, 8], got {a.subdivisions}")
     if a.eval_views:
         try:
             views = [int(v) for v in a.eval_views.split(",")]

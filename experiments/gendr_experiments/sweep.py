@@ -187,7 +187,11 @@ def _reach_scheduler(address: str, timeout: float = 5.0):
     if u.scheme not in ("tcp", "tls") or not u.hostname:
         return
     try:
-        socket.create_connection((u.hostname, u.port or 8786), timeout=timeout).close()
+        port = u.port or 8786
+    except ValueError as exc:  # urlsplit checks the port only when asked: "Port out of range 0-65535"
+        raise SchedulerUnreachableError(f"Dask scheduler address {address!r}: {exc}") from None
+    try:
+        socket.create_connection((u.hostname, port), timeout=timeout).close()
     except OSError as exc:
         why = exc.strerror or type(exc).__name__
         raise SchedulerUnreachableError(f"no Dask scheduler answers at {address} ({why}); start one there with "
@@ -313,6 +317,8 @@ def execute(configs, store: ResultStore | str, *, workers: int | None = None, sc
             f"other_code='keep' (CLI --other-code keep) to count them as done, or 'rerun' to run them again")
     done = set(finished) - (set(stale) if other_code == "rerun" else set())
     todo = [(k, c) for k, c in keyed.items() if k not in done]
+    if todo and isinstance(scheduler, str):  # before the progress bar: an address error is one line
+        _reach_scheduler(scheduler)
     bar = _progress_bar(len(todo), len(keyed) - len(todo), stream) if progress and todo else None
 
     def finish(row):
@@ -330,7 +336,6 @@ def execute(configs, store: ResultStore | str, *, workers: int | None = None, sc
             if isinstance(scheduler, Client):
                 client = scheduler
             else:
-                _reach_scheduler(scheduler)
                 client = Client(scheduler)
             try:
                 _check_cluster_code(client, {c.get("backend", "torch") for _, c in todo})

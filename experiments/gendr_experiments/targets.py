@@ -60,6 +60,14 @@ def _scalar_or_n(z, key, n, path):
     return torch.from_numpy(np.asarray(z[key], dtype=np.float32).copy())
 
 
+def _clip_plane(z, key, path):
+    """near / far: one number (the renderer's clip planes are not per view)."""
+    a = np.asarray(z[key])
+    if a.size != 1 or not np.issubdtype(a.dtype, np.number) or np.iscomplexobj(a):
+        raise InputValueError(f"{path}: {key} must be one real number, got {a.tolist()!r}")
+    return float(a.reshape(()))
+
+
 def _vec3(z, key, n, path, default=None):
     if key not in z:
         return default
@@ -117,7 +125,7 @@ def load_image_target(target: str):
     n = im.shape[0]
     pos = _one_of(z, _POSITION, "camera position", path)
     lens = _one_of(z, _LENS, "camera lens", path)
-    clip = {k: float(np.asarray(z[k])) for k in ("near", "far") if k in z}
+    clip = {k: _clip_plane(z, k, path) for k in ("near", "far") if k in z}
     if pos[0] == "azimuth":
         eye = gendr.Orbit(*(_scalar_or_n(z, k, n, path) for k in pos))
     else:
