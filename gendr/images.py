@@ -106,18 +106,26 @@ def write_png(path, image) -> Path:
 
 def read_png(path) -> np.ndarray:
     """Read a PNG file (or any image Pillow reads) as uint8 ``[H, W, C]``: C = 1 (gray), 2 (gray+alpha),
-    3 (RGB) or 4 (RGBA); palette and 16-bit images are converted to RGBA. Raises
-    :class:`~gendr.errors.InputValueError` naming the path when it cannot be read or decoded."""
+    3 (RGB) or 4 (RGBA); 16-bit gray is scaled to 8 bits (C = 1), palette and other 8-bit modes are
+    converted to RGBA. Raises :class:`~gendr.errors.InputValueError` naming the path when it cannot
+    be read or decoded, or holds float or 32-bit integer pixels (no 8-bit meaning to give them)."""
     p = os.fspath(path)
     Image = require_pillow(f"reading {p!r}")
+    a = None
     try:
         with Image.open(p) as im:
             im.load()
-            if im.mode not in _MODES.values():
-                im = im.convert("RGBA")
-            a = np.asarray(im, dtype=np.uint8)
+            mode = im.mode
+            if mode.startswith("I;16"):  # 16-bit gray: Pillow's convert() would clip at 255, not scale
+                a = ((np.asarray(im).astype(np.uint32) * 255 + 32767) // 65535).astype(np.uint8)
+            elif mode not in ("I", "F"):
+                a = np.asarray(im if mode in _MODES.values() else im.convert("RGBA"), dtype=np.uint8)
     except (OSError, SyntaxError, ValueError) as e:  # Pillow reports a corrupt PNG as SyntaxError
         raise InputValueError(f"cannot read image file {p!r}: {e}") from None
+    if a is None:
+        kind = "float" if mode == "F" else "32-bit integer"
+        raise InputValueError(f"cannot read image file {p!r}: its pixels are {kind} (Pillow mode {mode!r}), "
+                              f"which have no 8-bit meaning; save it as an 8- or 16-bit PNG")
     return a[:, :, None] if a.ndim == 2 else a
 
 

@@ -97,6 +97,18 @@ def test_read_png_errors(tmp_path):
         read_png(tmp_path / "missing.png")
 
 
+def test_read_png_scales_16_bit_gray_and_refuses_float_pixels(tmp_path):
+    """Pillow's convert() clips 16-bit gray at 255 (1000, 30000, 65535 all read as 255 before);
+    float pixels (TIFF mode F) have no 8-bit meaning and were truncated to 0 / 1."""
+    Image = pytest.importorskip("PIL.Image")
+    Image.fromarray(np.array([[0, 1000, 30000, 65535]], dtype=np.uint16)).save(tmp_path / "g16.png")
+    got = read_png(tmp_path / "g16.png")
+    assert got.shape == (1, 4, 1) and got.ravel().tolist() == [0, 4, 117, 255]  # round(v·255/65535)
+    Image.fromarray(np.array([[0.25, 0.5, 1.0]], dtype=np.float32)).save(tmp_path / "f.tiff")
+    with pytest.raises(InputValueError, match=r"f.tiff.*float \(Pillow mode 'F'\)"):
+        read_png(tmp_path / "f.tiff")
+
+
 def test_without_pillow_render_says_what_to_install(tmp_path, monkeypatch, capsys):
     monkeypatch.setitem(sys.modules, "PIL", None)  # import PIL fails as if it were not installed
     with pytest.raises(BackendUnavailableError, match=r"gendr\[images\]"):
