@@ -113,6 +113,12 @@ def _norm(v):
     return np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
 
 
+def _is_drjit_vector(value) -> bool:
+    """A Dr.Jit vector array (Array3f, ...: shape (3, N)), not a Dr.Jit tensor ([N, 3] like NumPy)."""
+    t = type(value)
+    return t.__module__.startswith("drjit") and not t.__name__.startswith("Tensor")
+
+
 @dataclass(frozen=True, eq=False)
 class Camera:
     """Base class: pose from ``eye`` (a point or an :class:`Orbit`), ``at``, ``up``; clip planes.
@@ -260,6 +266,8 @@ class Camera:
         B = 1
         for k, (value, kind) in self.array_params().items():
             shape = tuple(value.shape) if hasattr(value, "shape") else np.shape(value)
+            if kind == VEC3 and len(shape) == 2 and _is_drjit_vector(value):
+                shape = shape[::-1]  # a Dr.Jit Array3f is (3, N): N 3-vectors
             n = shape[0] if len(shape) == (2 if kind == VEC3 else 1) else 1
             if n == 0:
                 raise ShapeError(f"camera parameter {k} has an empty batch (shape {list(shape)})")

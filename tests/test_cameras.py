@@ -237,3 +237,22 @@ def test_float32_camera_parameters_with_float64_vertices():
     assert img.dtype == DT
     img.sum().backward()
     assert eye.grad is not None and eye.grad.dtype == torch.float32 and torch.isfinite(eye.grad).all()
+
+
+def test_a_drjit_array3f_pose_is_a_batch_of_its_width():
+    """A Dr.Jit Array3f has shape (3, N): N eyes, not a batch of 3 (it was read as batch 3, so
+    batch-2 vertices or colours were refused). It renders as the same eyes given as a [2, 3] array."""
+    import numpy as np
+    pytest.importorskip("drjit")
+    from drjit.llvm.ad import Array3f, Float
+    from gendr import scenes
+    m = scenes.icosphere(1)
+    verts = np.stack([m.vertices, 0.9 * m.vertices])
+    eyes = Array3f(Float(0.0, 3.0), Float(0.0, 0.0), Float(3.0, 0.0))
+    assert gendr.PerspectiveCamera(eye=eyes).batch_size() == 2
+    assert gendr.PerspectiveCamera(eye=Array3f(0.0, 0.0, 3.0)).batch_size() == 1
+    r = gendr.Renderer(image_size=8, backend="drjit")
+    got = r.render(verts, m.faces, gendr.PerspectiveCamera(eye=eyes), vertex_colors=np.ones((2, len(m.vertices), 3)))
+    want = r.render(verts, m.faces, gendr.PerspectiveCamera(eye=np.array([[0.0, 0.0, 3.0], [3.0, 0.0, 0.0]])))
+    assert np.asarray(got).shape == (2, 8, 8, 4)
+    np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
