@@ -17,9 +17,10 @@ Conventions (docs/conventions.md, "Interop"):
 from __future__ import annotations
 
 import math
+import numbers
 
 from .cameras import Camera, IntrinsicsCamera, PerspectiveCamera
-from .errors import ParameterError, ShapeError
+from .errors import DTypeError, ParameterError, ShapeError
 
 
 def _torch():
@@ -34,8 +35,8 @@ def _intrinsics(camera, H, W, dtype, device):
     def t(v):
         return (v.to(dtype=dtype, device=device) if isinstance(v, torch.Tensor)
                 else torch.as_tensor(v, dtype=dtype, device=device)).reshape(-1)
-    if isinstance(camera, IntrinsicsCamera):
-        return t(camera.fx), t(camera.fy), t(camera.cx), t(camera.cy)
+    if isinstance(camera, IntrinsicsCamera):  # a batched cx beside a scalar fx: [Bc] each
+        return torch.broadcast_tensors(t(camera.fx), t(camera.fy), t(camera.cx), t(camera.cy))
     if isinstance(camera, PerspectiveCamera):
         f = (H / 2.0) / torch.tan(t(camera.fov_y) * (math.pi / 360.0))
         return f, f, torch.full_like(f, W / 2.0), torch.full_like(f, H / 2.0)
@@ -61,9 +62,10 @@ def world_to_view(camera: Camera, dtype=None, device=None):
     from gendr_torch.raster import camera_tensors
     dtype = dtype or torch.float64
     P, _ = camera_tensors(camera, dtype, device or "cpu")
-    r, u, b, e = camera.basis(ops, P)  # each a 3-tuple of [Bc|1, 1]
-    R = torch.stack([torch.cat(list(ax), -1) for ax in (r, u, b)], -2)  # rows r, u, b: [Bc, 3, 3]
-    eye = torch.cat(list(e), -1)  # [Bc, 3]
+    r, u, b, e = camera.basis(ops, P)  # each a 3-tuple of [Bc|1, 1]: broadcast (a batched eye, a fixed up)
+    c = torch.broadcast_tensors(*r, *u, *b, *e)
+    R = torch.stack([torch.cat(c[k:k + 3], -1) for k in (0, 3, 6)], -2)  # rows r, u, b: [Bc, 3, 3]
+    eye = torch.cat(c[9:12], -1)  # [Bc, 3]
     return R, -(R @ eye[..., None])[..., 0]
 
 
@@ -86,7 +88,15 @@ def project_points(camera: Camera, points, image_size):
     from gendr_torch.ops import torch_ops as ops
     from gendr_torch.raster import camera_tensors
     H, W = _size(image_size)
+    if not isinstance(points, torch.Tensor) or not points.is_floating_point():
+        raise DTypeError(f"project_points: points must be a float torch tensor, got "
+                         f"{type(points).__name__}{'' if not hasattr(points, 'dtype') else ' of ' + str(points.dtype)}")
+    if points.ndim not in (2, 3) or points.shape[-1] != 3:
+        raise ShapeError(f"project_points: points must be [N, 3] or [B, N, 3], got {list(points.shape)}")
     pts = points if points.ndim == 3 else points[None]
+    Bc = camera.batch_size()
+    if pts.shape[0] not in (1, Bc) and Bc != 1:
+        raise ShapeError(f"project_points: points have batch size {pts.shape[0]}, the camera {Bc}; give 1 or {Bc}")
     P, _ = camera_tensors(camera, pts.dtype, pts.device)
     xv, yv, zv = camera.view_coords(ops, P, *pts.unbind(-1))
     sx, sy, ox, oy = camera.ndc_affine(ops, P, H, W)
@@ -94,14 +104,15 @@ def project_points(camera: Camera, points, image_size):
         nx, ny = sx * xv + ox, sy * yv + oy
     else:
         nx, ny = sx * xv / -zv + ox, sy * yv / -zv + oy
-    return torch.stack([(nx + 1.0) * (W / 2.0), (1.0 - ny) * (H / 2.0)], -1)
+    return torch.stack(torch.broadcast_tensors((nx + 1.0) * (W / 2.0), (1.0 - ny) * (H / 2.0)), -1)
 
 
 def _size(image_size):
-    if isinstance(image_size, int) and not isinstance(image_size, bool):
-        return image_size, image_size
     try:
-        H, W = (int(v) for v in image_size)
+        if isinstance(image_size, numbers.Integral) and not isinstance(image_size, bool):
+            H = W = int(image_size)
+        else:
+            H, W = (int(v) for v in image_size)
     except (TypeError, ValueError):
         raise ParameterError(f"image_size={image_size!r} must be (H, W) or an int") from None
     if H < 1 or W < 1:

@@ -42,6 +42,49 @@ def test_kornia_roundtrip_same_projections(k):
     np.testing.assert_allclose(interop.project_points(back, pts, (H, W)).numpy(), ours.numpy(), rtol=0, atol=1e-9)
 
 
+def test_cameras_with_one_batched_parameter():
+    """A batched azimuth beside a scalar elevation, a batched cx or xmag beside scalar others: each
+    batch element projects as the unbatched camera with its values (these raised torch's "Sizes of
+    tensors must match" / "stack expects each tensor to be equal size" before)."""
+    pts = _points(5)
+    cases = [
+        (gendr.orbit_camera(np.array([0.0, 40.0]), 10.0, 3.0),
+         [gendr.orbit_camera(0.0, 10.0, 3.0), gendr.orbit_camera(40.0, 10.0, 3.0)]),
+        (gendr.IntrinsicsCamera(eye=(0.0, 0.0, 3.0), fx=20.0, fy=20.0, cx=[8.0, 11.0], cy=6.0),
+         [gendr.IntrinsicsCamera(eye=(0.0, 0.0, 3.0), fx=20.0, fy=20.0, cx=c, cy=6.0) for c in (8.0, 11.0)]),
+        (gendr.OrthographicCamera(eye=(0.0, 0.0, 3.0), xmag=[1.0, 2.0], ymag=1.0),
+         [gendr.OrthographicCamera(eye=(0.0, 0.0, 3.0), xmag=x, ymag=1.0) for x in (1.0, 2.0)]),
+    ]
+    for batched, singles in cases:
+        got = interop.project_points(batched, pts, (12, 16))
+        assert got.shape == (2, 5, 2)
+        for b, single in enumerate(singles):
+            np.testing.assert_allclose(got[b].numpy(), interop.project_points(single, pts, (12, 16))[0].numpy(),
+                                       rtol=0, atol=1e-12)
+        R, t = interop.world_to_view(batched)
+        assert R.shape[0] == t.shape[0] in (1, 2)
+        if not batched.orthographic:
+            pytest.importorskip("kornia")
+            pin = interop.to_kornia(batched, (12, 16))
+            np.testing.assert_allclose((pin.project(pts[None].expand(2, -1, -1)) + 0.5).numpy(), got.numpy(),
+                                       rtol=0, atol=1e-9)
+
+
+def test_interop_input_errors():
+    from gendr.errors import DTypeError, ShapeError
+    cam = gendr.orbit_camera(np.array([0.0, 40.0, 80.0]), 10.0, 3.0)
+    with pytest.raises(ShapeError, match="points have batch size 2, the camera 3"):
+        interop.project_points(cam, torch.zeros(2, 4, 3), 8)
+    with pytest.raises(ShapeError, match=r"\[N, 3\] or \[B, N, 3\], got \[4, 2\]"):
+        interop.project_points(cam, torch.zeros(4, 2), 8)
+    with pytest.raises(DTypeError, match="float torch tensor, got ndarray"):
+        interop.project_points(cam, np.zeros((4, 3)), 8)
+    for size in (0, -4, (8, 0)):
+        with pytest.raises(ParameterError, match="must be positive"):
+            interop.project_points(cam, torch.zeros(4, 3), size)
+    assert interop.project_points(cam, torch.zeros(4, 3), np.int64(8)).shape == (3, 4, 2)
+
+
 def test_kornia_conversion_is_differentiable_and_renders_the_same():
     pytest.importorskip("kornia")
     az = torch.tensor(30.0, dtype=torch.float64, requires_grad=True)
