@@ -400,6 +400,15 @@ def test_empty_batches_and_ragged_faces(backend):
     assert img.shape == (1, 8, 10, 4) and float(img[..., 3].max()) == 0.0
 
 
+@pytest.mark.parametrize("backend", _backends())
+@pytest.mark.parametrize("faces, dtype", [(None, "object"), ([["a", "b", "c"]], "<U1"), (np.zeros((1, 3)), "float64"),
+                                          ([[True, False, True]], "bool")])
+def test_faces_that_are_not_integers_are_a_dtype_error_on_every_backend(backend, faces, dtype):
+    """(None or strings were torch's raw TypeError on the torch backend, a DTypeError on drjit)"""
+    with pytest.raises(DTypeError, match=f"faces must be an integer array, got {dtype}"):
+        renderer(backend=backend).render(V, faces, CAM)
+
+
 def test_torch_device_is_checked_at_construction():
     """(a CUDA device on a CPU-only torch failed at the first render with an AssertionError)"""
     from gendr.errors import BackendUnavailableError

@@ -68,10 +68,14 @@ class TorchBackend:
         return t
 
     def index_array(self, x, name):
-        t = x if isinstance(x, torch.Tensor) else torch.as_tensor(np.array(x), device=self.device)
-        if t.dtype.is_floating_point or t.dtype == torch.bool or t.dtype.is_complex:
-            raise DTypeError(f"{name} must be an integer array, got {t.dtype}")
-        return t.long()
+        if not isinstance(x, torch.Tensor):
+            a = np.array(x)
+            if a.dtype.kind not in "iu":  # (None, strings: torch.as_tensor's TypeError; floats, bools)
+                raise DTypeError(f"{name} must be an integer array, got {a.dtype}")
+            return torch.as_tensor(a, device=self.device).long()
+        if x.dtype.is_floating_point or x.dtype == torch.bool or x.dtype.is_complex:
+            raise DTypeError(f"{name} must be an integer array, got {x.dtype}")
+        return x.long()
 
     def first_nonfinite(self, t):
         bad = ~torch.isfinite(t)
