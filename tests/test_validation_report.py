@@ -55,6 +55,20 @@ def test_cli_validate_bad_instance(tmp_path, capsys):
     assert "instance" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("argv, words", [
+    (["validate", "--scenes", "nosuch"], "unknown scene 'nosuch'"),
+    (["validate", "--instances", "99999"], "instance index 99999"),
+    (["validate", "--backends", "tourch"], "unknown backend 'tourch'"),  # was: a FAILED report, exit 1
+    (["gallery", "--size", "0"], "gallery size=0 must be an integer >= 1"),
+])
+def test_bad_input_writes_nothing(tmp_path, capsys, argv, words):
+    """(each left an empty output folder, or the gallery's first three figures, behind)"""
+    out = tmp_path / "out"
+    assert main([*argv, "-o", str(out)]) == 2
+    assert words in capsys.readouterr().err
+    assert not out.exists()
+
+
 def test_report_renders_in_headless_chromium(tmp_path):
     browser = pytest.importorskip("gendr_validation.browser")
     try:

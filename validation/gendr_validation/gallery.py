@@ -121,7 +121,10 @@ def fig_tau_sweep(outdir, size=64):
 
 
 def generate(outdir="docs/gallery", size=64):
-    """Write every figure; returns [(path, bytes)]."""
+    """Write every figure; returns [(path, bytes)]. ``size``: render size in pixels (>= 1), checked
+    before anything is written."""
+    if isinstance(size, bool) or not isinstance(size, int) or size < 1:
+        raise gendr.ParameterError(f"gallery size={size!r} must be an integer >= 1 (pixels)")
     os.makedirs(outdir, exist_ok=True)
     out = []
     out += fig_distributions(outdir)

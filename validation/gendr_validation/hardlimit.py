@@ -190,7 +190,13 @@ def open_references(names, notes=None):
 
 
 def usable_backends(names=None, notes=None):
-    """Registered backends that import (``gendr.available_backends()``); others skipped with a note."""
+    """Registered backends that import (``gendr.available_backends()``); others skipped with a note.
+    A name that is not registered at all is an :class:`~gendr.UnknownNameError` (a typo, not a
+    missing extra)."""
+    registered = sorted(gendr.available_backends())
+    unknown = [n for n in names or () if n not in registered]
+    if unknown:
+        raise gendr.UnknownNameError("backend", unknown[0], registered)
     out = []
     for n in (names or sorted(gendr.available_backends())):
         try:

@@ -158,7 +158,6 @@ def _run(backends, instances, scenes, quick, outdir, references, limit_instances
     stream = stream or sys.stdout
     t_start = time.perf_counter()
     notes = []
-    os.makedirs(outdir, exist_ok=True)
     bnames = hardlimit.usable_backends(backends, notes)
     refs = hardlimit.open_references(DEFAULT_REFERENCES if references is None else references, notes)
     H, W = size or (QUICK_SIZE if quick else FULL_SIZE)
@@ -172,6 +171,7 @@ def _run(backends, instances, scenes, quick, outdir, references, limit_instances
     cams_all = hardlimit.standard_cameras(H, W)
     cam_names = list(cameras) if cameras else list(hardlimit.QUICK_CAMERAS if quick else cams_all)
     ginst = gradcheck.select_instances(instances)
+    os.makedirs(outdir, exist_ok=True)  # after every input is resolved: a bad name leaves no empty folder
 
     # --- hard limit -----------------------------------------------------------------------------
     n_hl = len(meshes) * len(cam_names) * len(bnames) * len(lim)
