@@ -476,9 +476,8 @@ def build_parser(describe_plugins: bool = True) -> argparse.ArgumentParser:
     p = sub.add_parser(
         "demo", formatter_class=_Formatter,
         help="render every built-in scene with several renderers into a contact sheet",
-        description="Render every built-in scene (rows) with six instances (columns): logistic+probabilistic, "
-                    "SoftRas (squared logistic+probabilistic), gaussian+einstein, cauchy+yager(p=2), the hard "
-                    "limit heaviside+or, and reversed exponential+max. Writes OUTDIR/contact_sheet.png "
+        description=f"Render every built-in scene (rows) with {len(DEMO_INSTANCES)} instances (columns): "
+                    f"{'; '.join(label for label, *_ in DEMO_INSTANCES)}. Writes OUTDIR/contact_sheet.png "
                     "(renders composited over dark gray) and OUTDIR/contact_sheet.json (which scene and "
                     "instance is where, timings).",
         epilog="examples:\n"
