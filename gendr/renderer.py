@@ -405,7 +405,8 @@ class Renderer:
 
         Returns [B, H, W, 4] in the vertices' dtype: RGB, then alpha (the aggregated coverage).
         A backend array on the vertices' device (torch: CPU/CUDA tensor; the drjit backend: a torch
-        tensor when any input is one, else TensorXf/TensorXf64); NumPy inputs are converted to the
+        tensor when any float input is one — vertices, colours, texture, uvs, τ, a camera or spec
+        parameter; index arrays (faces, uv_faces) do not count — else TensorXf/TensorXf64); NumPy inputs are converted to the
         backend (torch: CPU). Differentiable w.r.t.
         vertices, colours, texture, uvs, the camera's tensor parameters, a tensor ``tau`` and the
         learnable T-conorm and distribution parameters (whichever require grad); ``faces`` and ``uv_faces`` are not.
