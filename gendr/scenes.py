@@ -59,7 +59,10 @@ class Mesh:
     faces: np.ndarray
 
     def __post_init__(self):
-        v = np.ascontiguousarray(np.asarray(self.vertices, dtype=np.float64))
+        try:
+            v = np.ascontiguousarray(np.asarray(self.vertices, dtype=np.float64))
+        except (TypeError, ValueError) as e:  # ragged lists, strings
+            raise InputValueError(f"mesh vertices must be numbers of shape [V, 3]: {e}") from None
         f = np.asarray(self.faces)
         if f.size == 0:
             f = f.reshape(-1, 3)
@@ -137,6 +140,8 @@ def concatenate(meshes) -> Mesh:
         vs.append(m.vertices)
         fs.append(m.faces + offset)
         offset += m.num_vertices
+    if not vs:
+        raise InputValueError("concatenate needs at least one mesh, got none")
     return Mesh(np.concatenate(vs), np.concatenate(fs))
 
 
@@ -471,12 +476,16 @@ def get_scene(name: str, **kwargs) -> Mesh:
     """
     if not isinstance(name, str) or name not in SCENES:
         raise UnknownNameError("scene", name, sorted(SCENES))
-    accepted = inspect.signature(SCENES[name]).parameters
+    return _call_scene(SCENES[name], "scene", name, kwargs)
+
+
+def _call_scene(make, kind, name, kwargs):
+    accepted = inspect.signature(make).parameters
     for key in kwargs:
         if key not in accepted:
-            raise ParameterError(f"scene {name!r} got unexpected parameter {key!r}; it accepts "
+            raise ParameterError(f"{kind} {name!r} got unexpected parameter {key!r}; it accepts "
                                  f"{', '.join(accepted) or 'no parameters'}")
-    return SCENES[name](**kwargs)
+    return make(**kwargs)
 
 
 def _trimesh_load(path):
@@ -537,7 +546,8 @@ class TexturedMesh(Mesh):
     Attributes (besides :class:`Mesh`'s):
         uvs: float64 ``[T, 2]`` texture coordinates (u right, v up; docs/conventions.md, Textures).
         uv_faces: int64 ``[F, 3]`` indices into ``uvs`` per face corner.
-        texture: float64 ``[Ht, Wt, C]``, C = 3 or 4, albedo in [0, 1], row 0 at the top.
+        texture: float64 ``[Ht, Wt, C]``, C = 3 or 4, albedo in [0, 1] (a uint8 texture is divided by
+            255), row 0 at the top.
 
     Render with ``Renderer.render(m.vertices, m.faces, cam, texture=m.texture, uvs=m.uvs,
     uv_faces=m.uv_faces)``. Raises ShapeError / InputValueError for bad shapes or indices.
@@ -556,7 +566,9 @@ class TexturedMesh(Mesh):
         super().__post_init__()
         uv = np.ascontiguousarray(np.asarray(self.uvs, dtype=np.float64))
         uvf = np.asarray(self.uv_faces)
-        tex = np.ascontiguousarray(np.asarray(self.texture, dtype=np.float64))
+        tex = np.asarray(self.texture)
+        # 8-bit images mean 0..255 (the Renderer refuses uint8 textures; here the meaning is clear)
+        tex = np.ascontiguousarray(tex / 255.0 if tex.dtype == np.uint8 else tex.astype(np.float64))
         if uv.ndim != 2 or uv.shape[1] != 2 or not np.all(np.isfinite(uv)):
             raise ShapeError(f"mesh uvs must be finite with shape [T, 2], got {tuple(uv.shape)}")
         if uvf.shape != self.faces.shape or (uvf.size and not np.issubdtype(uvf.dtype, np.integer)):
@@ -567,6 +579,9 @@ class TexturedMesh(Mesh):
             raise InputValueError(f"mesh uv_faces must lie in [0, {len(uv)}), got range [{int(uvf.min())}, {int(uvf.max())}]")
         if tex.ndim != 3 or tex.shape[2] not in (3, 4) or not np.all(np.isfinite(tex)):
             raise ShapeError(f"mesh texture must be finite with shape [Ht, Wt, 3|4], got {tuple(tex.shape)}")
+        if tex.size and (tex.min() < 0.0 or tex.max() > 1.0):
+            raise InputValueError(f"mesh texture must be albedo in [0, 1] (or uint8), got values in "
+                                  f"[{tex.min():g}, {tex.max():g}]")
         object.__setattr__(self, "uvs", uv)
         object.__setattr__(self, "uv_faces", uvf)
         object.__setattr__(self, "texture", tex)
@@ -657,7 +672,7 @@ def get_textured_scene(name: str, **kwargs) -> TexturedMesh:
     """
     if not isinstance(name, str) or name not in TEXTURED_SCENES:
         raise UnknownNameError("textured scene", name, sorted(TEXTURED_SCENES))
-    return TEXTURED_SCENES[name](**kwargs)
+    return _call_scene(TEXTURED_SCENES[name], "textured scene", name, kwargs)
 
 
 def load_textured_mesh(path) -> TexturedMesh:

@@ -232,3 +232,22 @@ def test_a_scene_keyword_it_does_not_take_names_the_accepted_ones():
 def test_load_mesh_needs_a_path(path):
     with pytest.raises(InputValueError, match="str or os.PathLike"):
         load_mesh(path)
+
+
+def test_scene_inputs_raise_typed_errors():
+    """(each was a raw TypeError / ValueError, or a silently wrong texture)"""
+    from gendr import scenes
+    from gendr.errors import ParameterError
+    with pytest.raises(ParameterError, match="textured scene 'textured_cube' got unexpected parameter 'foo'"):
+        scenes.get_textured_scene("textured_cube", foo=1)
+    with pytest.raises(InputValueError, match=r"mesh vertices must be numbers of shape \[V, 3\]"):
+        scenes.Mesh([[0.0, 0.0], [1.0, 0.0, 0.0]], [[0, 1, 1]])
+    with pytest.raises(InputValueError, match="could not convert string"):
+        scenes.Mesh([["a", "b", "c"]], [])
+    with pytest.raises(InputValueError, match="at least one mesh"):
+        scenes.concatenate([])
+    m = scenes.textured_cube()
+    as_bytes = scenes.TexturedMesh(m.vertices, m.faces, m.uvs, m.uv_faces, np.round(m.texture * 255).astype(np.uint8))
+    np.testing.assert_allclose(as_bytes.texture, m.texture, atol=0.5 / 255)
+    with pytest.raises(InputValueError, match=r"albedo in \[0, 1\] \(or uint8\), got values in \[21, 240\]"):
+        scenes.TexturedMesh(m.vertices, m.faces, m.uvs, m.uv_faces, np.round(m.texture * 255))
