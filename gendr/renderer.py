@@ -31,6 +31,13 @@ ENTRY_POINT_GROUP = "gendr.backends"
 #: picked a different one-sided derivative. Colours change by at most diffuse·LAMBERT_KINK_ULPS·eps.
 LAMBERT_KINK_ULPS = 256
 
+#: a face whose world edges e1, e2 have |e1 × e2| <= ZERO_AREA_ULPS·(machine eps)·|e1|·|e2| (corners
+#: collinear within rounding; sin of its angle <= 7.6e-6 in float32) has no normal: its cross product
+#: is rounding noise of either sign (FMA or not, summation order), so it lit such a face or left it
+#: dark by chance, differently per backend and device. Its Lambert term is 0 in both backends (and
+#: its normal adds nothing to its vertices' normals); coverage does not use it
+ZERO_AREA_ULPS = 64
+
 #: near-plane clipped renders: an edge from a corner farther than this from the image centre (screen
 #: units, max norm) to a nearer corner is measured from the nearer one, in both backends alike (the
 #: rounding of a pixel's distance to an edge is ~ulp of the corner it is measured from; clipped

@@ -34,8 +34,8 @@ Autograd through this code gives the reference gradients. Conventions (DESIGN.md
 
 Degenerate triangles (a normal of zero length up to rounding): their barycentrics are undefined;
 this reference uses (1/3, 1/3, 1/3), which is exact for a face collapsed to a point; their Lambert
-normal is 0. (A zero-area face's RGB colour is therefore ill-defined; the tests compare the softmax
-blend on scenes without one.)
+normal is 0 (|e1 × e2| <= ZERO_AREA_ULPS·eps·|e1|·|e2|, the backends' rule), so they are shaded
+with the ambient term only.
 """
 from __future__ import annotations
 
@@ -45,7 +45,7 @@ import torch
 
 from gendr_torch.ops import torch_ops as ops  # the ops namespace only
 
-from gendr.renderer import LAMBERT_KINK_ULPS
+from gendr.renderer import LAMBERT_KINK_ULPS, ZERO_AREA_ULPS
 from gendr.tconorms import ARCHIMEDEAN, HARD_OR, MAX, MEAN
 
 __all__ = ["render_naive", "render_naive_settings", "pixel_face_geometry"]
@@ -232,7 +232,12 @@ def render_naive(vertices, faces, camera, *, distribution, tconorm, tau, image_s
     if blend is not None:
         light = _normalize(_as_tensor(light_direction, dtype))
         wtri = verts[:, faces]  # [B, F, 3, 3] world corners
-        fnormal = torch.linalg.cross(wtri[:, :, 1] - wtri[:, :, 0], wtri[:, :, 2] - wtri[:, :, 0])
+        e1, e2 = wtri[:, :, 1] - wtri[:, :, 0], wtri[:, :, 2] - wtri[:, :, 0]
+        fnormal = torch.linalg.cross(e1, e2)
+        # collinear within rounding (|e1 × e2| <= ZERO_AREA_ULPS·eps·|e1|·|e2|): no normal
+        tol = ZERO_AREA_ULPS * torch.finfo(dtype).eps
+        noise = torch.linalg.vector_norm(fnormal, dim=-1) <= tol * torch.linalg.vector_norm(e1, dim=-1) * torch.linalg.vector_norm(e2, dim=-1)
+        fnormal = torch.where(noise.detach()[..., None], 0.0, fnormal)
         if face_colors is not None:
             fc = face_colors if face_colors.ndim == 3 else face_colors[None]
             albedo = fc.to(dtype).expand(B, -1, -1)[:, :, None, :].expand(B, F, 3, 3)

@@ -372,6 +372,29 @@ def test_face_collapsed_to_a_point_softmax():
                            camera_kind="perspective", verts=v, faces=FACES, gamma=0.05, diffuse=0.0))
 
 
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_a_zero_area_face_gets_no_diffuse_light_on_any_backend(dtype):
+    """Corners collinear in float64: e1 × e2 is rounding noise (−2.7e-17 in float64, +2.9e-8 in
+    float32), which normalised to ±n lit the face fully or not at all by chance: at its centre torch
+    rendered (1, 1, 1), drjit (0.5, 0.5, 0.5). Its Lambert term is now 0 (ZERO_AREA_ULPS) on every
+    backend: the render equals the one without diffuse light, and the backends agree."""
+    import numpy as np
+    v = torch.tensor([[-0.18185339938462564, 0.42421689650682415, 0.2], [-0.026846325622841588, 0.1099827432696946, 0.2],
+                      [0.1669125165793885, -0.28280994827671735, 0.2]], dtype=dtype)
+    faces = torch.tensor([[0, 1, 2]])
+    cam = gendr.PerspectiveCamera(eye=(0.0, 0.0, 3.0))
+    images = {}
+    for backend in ("torch", "drjit") if "drjit" in gendr.available_backends() else ("torch",):
+        for diffuse in (0.7, 0.0):
+            r = gendr.Renderer(tau=0.2, image_size=(4, 4), backend=backend, diffuse=diffuse)
+            images[backend, diffuse] = np.asarray(r.to_numpy(r.render(v, faces, cam)))
+        np.testing.assert_array_equal(images[backend, 0.7], images[backend, 0.0])
+        assert images[backend, 0.7][0, 1, 1, 3] > 0.3  # the face does cover the centre (soft)
+    if ("drjit", 0.7) in images:
+        np.testing.assert_allclose(images["torch", 0.7], images["drjit", 0.7], rtol=0,
+                                   atol=1e-6 if dtype == torch.float32 else 1e-12)
+
+
 def test_hard_blend_is_geometric_with_eps():
     """RGB "hard" is the nearest face covering the pixel centre, whatever its soft coverage: a
     distribution whose coverage is < eps just inside the edges must not punch holes into it."""

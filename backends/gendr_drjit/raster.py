@@ -31,7 +31,7 @@ from dataclasses import replace
 import numpy as np
 import drjit as dr
 
-from gendr.renderer import FAR_CORNER, LAMBERT_KINK_ULPS, check_screen_reach
+from gendr.renderer import FAR_CORNER, LAMBERT_KINK_ULPS, ZERO_AREA_ULPS, check_screen_reach
 from gendr.tconorms import HARD_OR, MAX, MEAN
 
 #: tile edges tried in order (see tile_size); TILE != 0 forces one
@@ -328,7 +328,13 @@ def _shading_data(settings, camera, ops, T, Pf, H, W, verts, Bv, V, B, F, b_f, f
     src = ((lane // V) if Bv > 1 else dr.zeros(UInt32, n)) * V + lane % V
     wv = [dr.gather(Float, verts, src * 3 + c) for c in range(3)]  # world vertices, lanes (b, v)
     wc = [tuple(dr.gather(Float, wv[c], b_f * V + vid[i]) for c in range(3)) for i in range(3)]
-    fn = _cross(tuple(wc[1][c] - wc[0][c] for c in range(3)), tuple(wc[2][c] - wc[0][c] for c in range(3)))
+    we1 = tuple(wc[1][c] - wc[0][c] for c in range(3))
+    we2 = tuple(wc[2][c] - wc[0][c] for c in range(3))
+    fn = _cross(we1, we2)
+    # corners collinear within rounding: no normal (ZERO_AREA_ULPS, gendr.renderer), as in gendr_torch
+    tol = (ZERO_AREA_ULPS * float(np.finfo(np.float64 if T.double else np.float32).eps)) ** 2
+    zero_area = dr.detach(_dot(fn, fn)) <= tol * dr.detach(_dot(we1, we1)) * dr.detach(_dot(we2, we2))
+    fn = tuple(dr.select(zero_area, 0.0, c) for c in fn)
     if colors is None:
         albedo = [(1.0, 1.0, 1.0)] * 3
         per_face = False

@@ -22,7 +22,7 @@ from torch.utils.checkpoint import checkpoint
 
 from gendr.cameras import VEC3
 from gendr.errors import ShapeError
-from gendr.renderer import FAR_CORNER, LAMBERT_KINK_ULPS, check_screen_reach
+from gendr.renderer import FAR_CORNER, LAMBERT_KINK_ULPS, ZERO_AREA_ULPS, check_screen_reach
 from gendr.tconorms import MAX, MEAN
 
 from .fused import FusedChains
@@ -257,7 +257,9 @@ def _shading_data(settings, camera, P, H, W, verts, faces, tri, colors, per_face
     if verts.shape[0] != B:
         verts = verts.expand(B, -1, -1)
     wtri = verts[:, faces]  # world corners [B, F, 3, 3]
-    fn = torch.linalg.cross(wtri[:, :, 1] - wtri[:, :, 0], wtri[:, :, 2] - wtri[:, :, 0], dim=-1)  # area-weighted
+    e1, e2 = wtri[:, :, 1] - wtri[:, :, 0], wtri[:, :, 2] - wtri[:, :, 0]
+    fn = torch.linalg.cross(e1, e2, dim=-1)  # area-weighted
+    fn = torch.where(_zero_area(fn.detach(), e1.detach(), e2.detach()), 0.0, fn)
     if colors is None:
         albedo = torch.ones_like(wtri)
         per_face = False
@@ -898,6 +900,12 @@ def _texel(settings, fc, sh, b, face):
     top = torch.lerp(at(r0, c0), at(r0, c1), fx)
     bot = torch.lerp(at(r1, c0), at(r1, c1), fx)
     return torch.lerp(top, bot, fy)
+
+
+def _zero_area(cross, e1, e2):
+    """[..., 1] True where |e1 × e2| is rounding noise (ZERO_AREA_ULPS, gendr.renderer)."""
+    tol = (ZERO_AREA_ULPS * torch.finfo(cross.dtype).eps) ** 2
+    return (cross * cross).sum(-1, keepdim=True) <= tol * (e1 * e1).sum(-1, keepdim=True) * (e2 * e2).sum(-1, keepdim=True)
 
 
 def render(settings, camera, verts, faces, colors, per_face, texture=None, compile=False):
