@@ -409,6 +409,16 @@ def test_faces_that_are_not_integers_are_a_dtype_error_on_every_backend(backend,
         renderer(backend=backend).render(V, faces, CAM)
 
 
+@pytest.mark.parametrize("backend", _backends())
+@pytest.mark.parametrize("dtype", [torch.complex64, torch.bool, torch.float16])
+def test_torch_colours_follow_the_numpy_dtype_rule(backend, dtype):
+    """Colour tensors, like NumPy colours, are float32/64 or integers: a complex tensor lost its
+    imaginary part with only a warning; bool and half were cast where NumPy's are refused."""
+    colours = torch.ones(len(V), 3, dtype=dtype)
+    with pytest.raises(DTypeError, match=f"vertex_colors must be float32, float64 or integers, got {dtype}"):
+        renderer(backend=backend).render(V, F, CAM, vertex_colors=colours)
+
+
 def test_torch_device_is_checked_at_construction():
     """(a CUDA device on a CPU-only torch failed at the first render with an AssertionError)"""
     from gendr.errors import BackendUnavailableError

@@ -33,6 +33,12 @@ def torch_device(device) -> torch.device:
     return dev
 
 
+
+def _colour_dtype(dtype) -> bool:
+    """What a colour tensor may be (cast to the vertices' dtype): float32/64 or integers, as for
+    NumPy colours; not complex (the cast drops the imaginary part), bool or half precision."""
+    return dtype in _FLOATS or not (dtype.is_floating_point or dtype.is_complex or dtype == torch.bool)
+
 class TorchBackend:
     """Renders with PyTorch on the device of the inputs (or ``device=`` for NumPy inputs).
 
@@ -53,6 +59,8 @@ class TorchBackend:
     def float_array(self, x, name, like=None):
         if isinstance(x, torch.Tensor):
             t = x
+            if like is not None and not _colour_dtype(t.dtype):
+                raise DTypeError(f"{name} must be float32, float64 or integers, got {t.dtype}")
         else:
             a = np.asarray(x)
             # colours (cast to the vertices' dtype) may be given as integers; geometry may not
