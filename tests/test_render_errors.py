@@ -419,6 +419,14 @@ def test_torch_colours_follow_the_numpy_dtype_rule(backend, dtype):
         renderer(backend=backend).render(V, F, CAM, vertex_colors=colours)
 
 
+def test_a_drjit_tau_on_the_torch_backend_is_a_parameter_error():
+    """(it was float()'s TypeError deep in the torch rasterizer)"""
+    pytest.importorskip("drjit")
+    from drjit.llvm.ad import Float
+    with pytest.raises(ParameterError, match="of type Float: the torch backend takes a number or a torch tensor"):
+        renderer(backend="torch", tau=Float(0.1)).render(V, F, CAM)
+
+
 def test_torch_device_is_checked_at_construction():
     """(a CUDA device on a CPU-only torch failed at the first render with an AssertionError)"""
     from gendr.errors import BackendUnavailableError

@@ -96,6 +96,10 @@ class TorchBackend:
         return int(t.min()), int(t.max())
 
     def render(self, settings, verts, faces, camera, colors, per_face, texture=None):
+        tau = settings.tau
+        if not isinstance(tau, (torch.Tensor, int, float)):  # (a Dr.Jit τ: float() of it is a TypeError)
+            raise ParameterError(f"Renderer parameter tau={tau!r} of type {type(tau).__name__}: the torch backend "
+                                 f"takes a number or a torch tensor")
         faces = faces.to(verts.device)
         if texture is not None:
             tex, uv, uvf = texture
