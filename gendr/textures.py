@@ -109,6 +109,8 @@ def check_textured_inputs(be, verts, faces_a, texture, uvs, uv_faces):
                              f"(give uv_faces [F, 3] to index uvs separately, as OBJ files do)")
         uvf = faces_a
     else:
+        if isinstance(uv_faces, (list, tuple)) and len(uv_faces) == 0:
+            uv_faces = np.zeros((0, 3), dtype=np.int64)  # as faces=[] ([] is float64 to NumPy)
         uvf = be.index_array(uv_faces, "uv_faces")
         if len(uvf.shape) != 2 or tuple(uvf.shape) != (F, 3):
             raise ShapeError(f"uv_faces must have shape [F, 3] = [{F}, 3] (one uv index per face corner), "

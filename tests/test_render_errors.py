@@ -398,6 +398,9 @@ def test_empty_batches_and_ragged_faces(backend):
         r.render(V, [[0, 1, 2], [0, 1]], CAM)
     img = r.to_numpy(r.render(V, [], CAM))  # no faces: an empty image
     assert img.shape == (1, 8, 10, 4) and float(img[..., 3].max()) == 0.0
+    # ... also textured, with uv_faces=[] (a DTypeError 'float64' before: [] is float64 to NumPy)
+    img = r.to_numpy(r.render(V, [], CAM, texture=np.ones((2, 2, 3)), uvs=np.zeros((1, 2)), uv_faces=[]))
+    assert img.shape == (1, 8, 10, 4) and float(img[..., 3].max()) == 0.0
 
 
 @pytest.mark.parametrize("backend", _backends())
