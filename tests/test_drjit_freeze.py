@@ -142,6 +142,40 @@ def test_shape_changes_record_anew():
     assert seen[:3] == [1, 2, 3] and seen[3:] == [3, 3]
 
 
+def test_every_setting_and_exact_spec_parameters_key_the_recording():
+    """Renderers sharing one frozen backend: a cut-off (not in the key before) and a T-conorm
+    parameter that rounds to the same 6-digit label each record anew, so each matches its own
+    unfrozen render (the shared replay returned the first renderer's image, 0.69 off)."""
+    r = _renderer(True)
+    fz = r.backend.frozen
+    variants = [dict(), dict(cutoff=0.1), dict(tcn=gendr.tconorm("yager", p=1.0)),
+                dict(tcn=gendr.tconorm("yager", p=1.0000004)), dict()]
+    seen = []
+    for kw in variants:
+        tcn = kw.pop("tcn", "probabilistic")
+        make = (lambda freeze: gendr.Renderer("logistic", tcn, tau=0.05, image_size=(24, 20), eps=1e-4, blend=None,
+                                              backend="drjit", device="llvm", freeze=freeze, **kw))
+        rr = make(True)
+        rr.backend = r.backend
+        _close(_fwd_bwd(rr, MESH.vertices), _fwd_bwd(make(False), MESH.vertices))
+        seen.append(fz.forward_recordings)
+    assert seen == [1, 2, 3, 4, 4]
+
+
+def test_frozen_renders_check_the_screen_reach():
+    """A face projected beyond what float32 edge lengths hold is an InputValueError frozen too (the
+    frozen path skipped the check: a finite, empty image), on a recording and on a replay."""
+    from gendr.errors import InputValueError
+    v = MESH.vertices.astype(np.float32)
+    for first in ("bad", "good"):
+        r = _renderer(True)
+        if first == "good":  # then the bad camera replays this recording
+            r.render(v, FACES, gendr.PerspectiveCamera(eye=(0.0, 0.0, 3.0), fov_y=40.0))
+        with pytest.raises(InputValueError, match="beyond what float32 edge lengths can hold"):
+            r.render(v, FACES, gendr.PerspectiveCamera(eye=(0.0, 0.0, 3.0), fov_y=1e-30))
+    assert r.backend.frozen.forward_recordings == 1
+
+
 def test_backward_layout_follows_the_radius_and_records_anew(monkeypatch):
     """The alpha sums' backward is face-major up to FACE_MAJOR_RADIUS_PX pixels of culling radius
     and pixel-major beyond; the layout is part of the frozen recording key (a τ that crosses the
@@ -168,18 +202,20 @@ def test_backward_layout_follows_the_radius_and_records_anew(monkeypatch):
 
 def test_near_plane_clipping_records_k4():
     """Faces crossing the near plane: the K = 3 replay detects it (device flag) and re-renders with
-    the clipped (K = 4) recording; same image and gradients as unfrozen."""
+    the clipped (K = 4) recording; same image and gradients as unfrozen. At 1.25 the crossing faces
+    have no index divisible by 4: Dr.Jit 1.5 replays a frozen dr.all from every 4th lane only, so
+    the flag read 'all in front' there (image off by 0.25) until it became a UInt32 max."""
     r = _renderer(True, size=(20, 24))
     fz = r.backend.frozen
     counts = []
-    for dist in (3.0, 1.15, 1.12, 3.0, 1.15):
+    for dist in (3.0, 1.25, 1.15, 1.12, 3.0, 1.25):
         cam_eye = (0.0, 0.0, dist)
         a = _fwd_bwd(r, MESH.vertices, eye=cam_eye, fov=70.0, near=0.3)
         b = _fwd_bwd(_renderer(False, size=(20, 24)), MESH.vertices, eye=cam_eye, fov=70.0, near=0.3)
         _close(a, b)
         counts.append(fz.forward_recordings)
     assert len(fz.static) == 2  # K = 3 and K = 4 recordings
-    assert counts == [1, 2, 2, 2, 2]
+    assert counts == [1, 2, 2, 2, 2, 2]
 
 
 @pytest.mark.parametrize("blend,tcn", [("softmax", "probabilistic"), ("hard", "max"), (None, "or"),

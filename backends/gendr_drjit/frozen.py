@@ -29,10 +29,13 @@ face masks and order — so the backward replay re-runs neither the forward loop
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import gc
 import math
 
 import drjit as dr
+
+from gendr.renderer import check_screen_reach
 
 from . import raster
 
@@ -47,10 +50,17 @@ class _Static:
 
 
 def settings_key(s):
-    """Everything of the settings that shapes the traced code (τ excluded: it is an input)."""
-    return (s.distribution.label(), s.tconorm.label(), tuple(s.image_size), s.eps, s.blend, s.gamma,
-            s.background_eps, tuple(s.background), s.ambient, s.diffuse, tuple(s.light_direction),
-            s.cull_backfaces)
+    """Every setting but τ (an input): each may shape the traced code. Spec parameters are exact
+    (their labels round to 6 digits), and new settings are covered without a word here (cutoff
+    was missing: a renderer sharing this backend replayed the recording made without one)."""
+    rest = tuple((f.name, repr(getattr(s, f.name))) for f in dataclasses.fields(s)
+                 if f.name not in ("tau", "distribution", "tconorm"))
+    return _spec_key(s.distribution), _spec_key(s.tconorm), rest
+
+
+def _spec_key(spec):
+    return (type(spec).__name__, spec.name, tuple((k, repr(float(v))) for k, v in spec.params),
+            *(repr(getattr(spec, a, None)) for a in ("shift", "reversed", "squared")))
 
 
 def camera_key(camera):
@@ -63,7 +73,7 @@ def _render(st, inp, cull, faces_u, resid=None):
     out, _, fc = raster.render_parts(st.settings, st.camera, st.ops, st.T, inp["P"], st.Bc, inp["v"], st.Bv, st.V,
                                      st.faces_np, col, st.per_face, inp["tau"],
                                      cull_r=cull if st.finite else None, clip=st.clip, faces_u=faces_u, resid=resid)
-    return out, fc.all_inside, fc.resid
+    return out, (fc.all_inside, fc.reach), fc.resid
 
 
 class FrozenRenderer:
@@ -154,10 +164,12 @@ class FrozenRenderer:
             if need:
                 ctx = _OpCtx(self, key, need)
                 out = dr.custom(_FrozenOp, inp, cull, faces_u, ctx)
-                all_inside = ctx.all_inside
+                all_inside, reach = ctx.checks
             else:
-                out, all_inside, _ = self.forward(_detach(inp), cull, faces_u, key)
+                out, (all_inside, reach), _ = self.forward(_detach(inp), cull, faces_u, key)
             if clip or bool(all_inside[0] if dr.width(all_inside) else True):
+                # (the unfrozen render checks this before rendering; a replay can only check after)
+                check_screen_reach(float(reach[0]), "float64" if T.double else "float32")
                 return out, B
         raise AssertionError("unreachable")
 
@@ -179,13 +191,13 @@ def _no_gc():
 
 class _OpCtx:  # (not a PyTree: dr.custom passes it through as is)
     def __init__(self, frozen, key, need):
-        self.frozen, self.key, self.need, self.all_inside = frozen, key, need, None
+        self.frozen, self.key, self.need, self.checks = frozen, key, need, None
 
 
 class _FrozenOp(dr.CustomOp):
     def eval(self, inp, cull, faces_u, ctx):
         self.inp, self.cull, self.faces_u, self.ctx = inp, cull, faces_u, ctx
-        out, ctx.all_inside, self.resid = ctx.frozen.forward(inp, cull, faces_u, ctx.key)
+        out, ctx.checks, self.resid = ctx.frozen.forward(inp, cull, faces_u, ctx.key)
         return out
 
     def forward(self):

@@ -148,7 +148,8 @@ def prepare_faces(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, color
     ``normals``: append the corners' unit normals to ``shade`` (G-buffer; computed without a blend too).
     ``clip``: None decides from the data whether near-plane clipping (K = 4) is needed (a host
     read); True / False force it (frozen replays, where nothing may be read back: ``fc.all_inside``
-    then holds the device-side answer, for the caller to verify afterwards). ``faces_u``: the faces
+    then holds the device-side answer and ``fc.reach`` the farthest corner, for the caller to check
+    afterwards, as ``check_screen_reach`` does here when ``clip`` is None). ``faces_u``: the faces
     as a flat UInt32 array (default: converted from ``faces_np``)."""
     H, W = settings.image_size
     B, F = max(Bv, Bc), faces_np.shape[0]
@@ -172,7 +173,10 @@ def prepare_faces(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, color
     corner = [tuple(dr.gather(Float, a, b_f * V + vid[c]) for a in (xv, yv, zv)) for c in range(3)]
     near = camera.near
     inside = [c[2] <= -near for c in corner]
-    all_in = dr.all(inside[0] & inside[1] & inside[2], axis=None)
+    in_front = inside[0] & inside[1] & inside[2]
+    # a UInt32 max, not dr.all: Dr.Jit 1.5 replays a frozen Bool reduction from every 4th lane only,
+    # so a face crossing the near plane at another index went unnoticed (unclipped image)
+    all_in = (dr.max(dr.select(in_front, UInt32(0), UInt32(1)), axis=None) == 0) if m else dr.full(T.Bool, True, 1)
     all_inside = (bool(all_in) if m else True) if clip is None else not clip
     if all_inside:
         poly, valid, K = corner, dr.full(T.Bool, True, m), 3
@@ -212,14 +216,17 @@ def prepare_faces(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, color
             nx, ny = sx * px_ / -pz_ + ox, sy * py_ / -pz_ + oy
         X.append(nx * (W / H))
         Y.append(ny)
-    if clip is None and m:  # (frozen replays read nothing back: unchecked there)
-        reach = dr.maximum(dr.abs(dr.detach(X[0])), dr.abs(dr.detach(Y[0])))
+    reach = dr.zeros(Float, 1)  # the farthest corner from the image centre (screen units, max norm)
+    if m:
+        far = dr.maximum(dr.abs(dr.detach(X[0])), dr.abs(dr.detach(Y[0])))
         for k in range(1, K):
-            reach = dr.maximum(reach, dr.maximum(dr.abs(dr.detach(X[k])), dr.abs(dr.detach(Y[k]))))
-        check_screen_reach(float(dr.max(reach, axis=None)[0]), "float64" if T.double else "float32")
+            far = dr.maximum(far, dr.maximum(dr.abs(dr.detach(X[k])), dr.abs(dr.detach(Y[k]))))
+        reach = dr.max(far, axis=None)
+        if clip is None:  # (a frozen render checks fc.reach after its replay: nothing is read back here)
+            check_screen_reach(float(reach[0]), "float64" if T.double else "float32")
     fc = Faces()
     fc.B, fc.F, fc.K, fc.X, fc.Y, fc.valid = B, F, K, X, Y, valid
-    fc.all_inside = all_in
+    fc.all_inside, fc.reach = all_in, reach
     fc.Xd, fc.Yd = [dr.detach(x) for x in X], [dr.detach(y) for y in Y]
     fc.ad = any(dr.grad_enabled(a) for a in X + Y)
     area2 = sum(dr.detach(X[k]) * dr.detach(Y[(k + 1) % K]) - dr.detach(X[(k + 1) % K]) * dr.detach(Y[k]) for k in range(K))
