@@ -173,3 +173,16 @@ def test_paper_cameras_file_gives_the_same_view_positions():
         theirs = eyes(rows[:, 0], rows[:, 1], rows[:, 2])
         d = np.linalg.norm(ours[:, None] - theirs[None], axis=-1)
         assert d.min(axis=1).max() < 1e-4 and d.min(axis=0).max() < 1e-4  # the same set of positions
+
+
+def test_each_pose_problem_class_refuses_the_other_parametrization():
+    """(PoseProblem on a paper config quietly built the quick rotation problem, not the look-at one)"""
+    from gendr.errors import ParameterError
+    from gendr_experiments.pose import LookAtPoseProblem, PoseProblem, make_pose_problem
+    paper = pose_config(protocol="paper", target="teapot_like", image_size=8, pairs=2, backend="torch")
+    with pytest.raises(ParameterError, match="PoseProblem optimises parametrization='rotation'; this config has 'lookat'"):
+        PoseProblem(paper)
+    with pytest.raises(ParameterError, match="LookAtPoseProblem optimises parametrization='lookat'"):
+        LookAtPoseProblem(pose_config(image_size=8, backend="torch"))
+    assert type(make_pose_problem(paper)) is LookAtPoseProblem
+    assert type(make_pose_problem(pose_config(image_size=8, backend="torch"))) is PoseProblem

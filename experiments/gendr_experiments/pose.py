@@ -138,8 +138,13 @@ class _PoseBase:
     """What both parametrisations share: the config, the mesh, a renderer per τ of the schedule
     (one backend object for all), the loss, the step with its finiteness checks."""
 
+    PARAMETRIZATION = None  # the config's "parametrization" this class optimises
+
     def __init__(self, config, backend_options, overrides):
         self.cfg = cfg = pose_config(config, **overrides)
+        if cfg["parametrization"] != self.PARAMETRIZATION:  # (else a paper config ran the quick problem)
+            raise ParameterError(f"{type(self).__name__} optimises parametrization={self.PARAMETRIZATION!r}; this "
+                                 f"config has {cfg['parametrization']!r}: use make_pose_problem(config)")
         self.size = int(cfg["image_size"])
         mesh = load_target_mesh(cfg["target"], normalize=bool(cfg["normalize_target"]))
         self.verts = torch.tensor(mesh.vertices, dtype=torch.float32)
@@ -190,11 +195,14 @@ class PoseProblem(_PoseBase):
     log-distance) and Adam. :meth:`step` runs one optimisation step (what :func:`run_pose` loops over
     and ``benchmarks/bench_step.py`` times).
 
-    The config is :func:`pose_config` of ``config`` and ``overrides``. ``backend_options`` go to the
+    The config is :func:`pose_config` of ``config`` and ``overrides``; a ``lookat`` one (the
+    ``paper`` protocol) is a ParameterError: :func:`make_pose_problem` picks the class. ``backend_options`` go to the
     renderer's backend (e.g. ``{"freeze": False}``: Dr.Jit renders are frozen by default,
     :func:`~gendr_experiments.common.make_renderer`); they are run-time options, not part of the
     config (so results' config hashes do not change).
     """
+
+    PARAMETRIZATION = "rotation"
 
     def __init__(self, config: dict | None = None, *, backend_options: dict | None = None, **overrides):
         super().__init__(config, backend_options, overrides)
@@ -265,6 +273,8 @@ class LookAtPoseProblem(_PoseBase):
     """The paper's pose optimisation (``parametrization="lookat"``): ``pairs`` independent pairs in
     one batch, parameters (distance, elevation°, azimuth°, view angle°) per pair; see the module
     docstring. :meth:`step` as :class:`PoseProblem`'s."""
+
+    PARAMETRIZATION = "lookat"
 
     def __init__(self, config: dict | None = None, *, backend_options: dict | None = None, **overrides):
         super().__init__(config, backend_options, overrides)
