@@ -127,7 +127,7 @@ class Camera:
     drawn; faces crossing it are clipped (as OpenGL does). ``far`` only normalises depth for the
     softmax RGB blend (DESIGN.md §3); it does not clip: coverage and alpha beyond it are kept, but
     with the softmax blend a face beyond ``far`` (normalised depth < 0) weighs less than the
-    background, so its pixels take the background colour.
+    background by exp((z̃ − ε)/γ), so its pixels take nearly the background colour.
 
     Args (all subclasses; OpenGL convention: the camera looks along its −Z, +Y up, +X right):
         eye: [3] or [B, 3] camera position in world units, or an :class:`Orbit`.

@@ -116,7 +116,8 @@ def read_png(path) -> np.ndarray:
         with Image.open(p) as im:
             im.load()
             mode = im.mode
-            if mode.startswith("I;16"):  # 16-bit gray: Pillow's convert() would clip at 255, not scale
+            if mode.startswith("I;16") or (mode == "I" and im.format == "PNG"):
+                # 16-bit gray (mode I for PNGs before Pillow 10.3): convert() would clip at 255, not scale
                 a = ((np.asarray(im).astype(np.uint32) * 255 + 32767) // 65535).astype(np.uint8)
             elif mode not in ("I", "F"):
                 a = np.asarray(im if mode in _MODES.values() else im.convert("RGBA"), dtype=np.uint8)

@@ -34,8 +34,9 @@ LAMBERT_KINK_ULPS = 256
 #: a face whose world edges e1, e2 have |e1 × e2| <= ZERO_AREA_ULPS·(machine eps)·|e1|·|e2| (corners
 #: collinear within rounding; sin of its angle <= 7.6e-6 in float32) has no normal: its cross product
 #: is rounding noise of either sign (FMA or not, summation order), so it lit such a face or left it
-#: dark by chance, differently per backend and device. Its Lambert term is 0 in both backends (and
-#: its normal adds nothing to its vertices' normals); coverage does not use it
+#: dark by chance, differently per backend and device. Its face normal is 0 in both backends: flat
+#: shading gives it the ambient term only, and it adds nothing to its vertices' normals (coverage
+#: does not use it)
 ZERO_AREA_ULPS = 64
 
 #: near-plane clipped renders: an edge from a corner farther than this from the image centre (screen
@@ -412,8 +413,8 @@ class Renderer:
 
         Returns [B, H, W, 4] in the vertices' dtype: RGB, then alpha (the aggregated coverage).
         A backend array on the vertices' device (torch: CPU/CUDA tensor; the drjit backend: a torch
-        tensor when any float input is one — vertices, colours, texture, uvs, τ, a camera or spec
-        parameter; index arrays (faces, uv_faces) do not count — else TensorXf/TensorXf64); NumPy inputs are converted to the
+        tensor when any input but the index arrays (faces, uv_faces) is one — vertices, colours,
+        texture, uvs, τ, a camera or spec parameter — else TensorXf/TensorXf64); NumPy inputs are converted to the
         backend (torch: CPU). Differentiable w.r.t.
         vertices, colours, texture, uvs, the camera's tensor parameters, a tensor ``tau`` and the
         learnable T-conorm and distribution parameters (whichever require grad); ``faces`` and ``uv_faces`` are not.

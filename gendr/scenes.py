@@ -579,9 +579,6 @@ class TexturedMesh(Mesh):
             raise InputValueError(f"mesh uv_faces must lie in [0, {len(uv)}), got range [{int(uvf.min())}, {int(uvf.max())}]")
         if tex.ndim != 3 or tex.shape[2] not in (3, 4) or not np.all(np.isfinite(tex)):
             raise ShapeError(f"mesh texture must be finite with shape [Ht, Wt, 3|4], got {tuple(tex.shape)}")
-        if tex.size and (tex.min() < 0.0 or tex.max() > 1.0):
-            raise InputValueError(f"mesh texture must be albedo in [0, 1] (or uint8), got values in "
-                                  f"[{tex.min():g}, {tex.max():g}]")
         object.__setattr__(self, "uvs", uv)
         object.__setattr__(self, "uv_faces", uvf)
         object.__setattr__(self, "texture", tex)

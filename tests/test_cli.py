@@ -97,13 +97,16 @@ def test_read_png_errors(tmp_path):
         read_png(tmp_path / "missing.png")
 
 
-def test_read_png_scales_16_bit_gray_and_refuses_float_pixels(tmp_path):
+def test_read_png_scales_16_bit_gray_and_refuses_float_pixels(tmp_path, monkeypatch):
     """Pillow's convert() clips 16-bit gray at 255 (1000, 30000, 65535 all read as 255 before);
     float pixels (TIFF mode F) have no 8-bit meaning and were truncated to 0 / 1."""
     Image = pytest.importorskip("PIL.Image")
     Image.fromarray(np.array([[0, 1000, 30000, 65535]], dtype=np.uint16)).save(tmp_path / "g16.png")
     got = read_png(tmp_path / "g16.png")
     assert got.shape == (1, 4, 1) and got.ravel().tolist() == [0, 4, 117, 255]  # round(v·255/65535)
+    from PIL import PngImagePlugin  # Pillow < 10.3 opened 16-bit gray PNGs as mode "I": the same
+    monkeypatch.setitem(PngImagePlugin._MODES, (16, 0), ("I", "I;16B"))
+    assert read_png(tmp_path / "g16.png").ravel().tolist() == [0, 4, 117, 255]
     Image.fromarray(np.array([[0.25, 0.5, 1.0]], dtype=np.float32)).save(tmp_path / "f.tiff")
     with pytest.raises(InputValueError, match=r"f.tiff.*float \(Pillow mode 'F'\)"):
         read_png(tmp_path / "f.tiff")

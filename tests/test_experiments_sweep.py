@@ -98,6 +98,11 @@ def test_lookat_pose_ties_are_broken_by_the_mean_final_error():
     assert summarize_best([unknown, far])[7]["lr"] == 0.1
     better = row(0.5, [90.0, 90.0], 2)  # more successes beat any error
     assert summarize_best([far, near, better])[7]["lr"] == 0.5
+    # an error row beside a finished one: its pairs count as failed at 180°, whatever fields it has
+    failed = dict(row(0.5, [1.0, 1.0], 2), status="error", metric=None)
+    (best,) = summarize_best([better, failed]).values()
+    assert best["success_rate"] == 0.5 and best["errors"] == 1
+    assert best["score"] == pytest.approx(0.5 + 1e-6 * (90 + 90 + 180 + 180) / 4 / 180, abs=1e-12)
 
 
 def test_fine_grid_names_coarse_tau_exactly():
@@ -167,6 +172,7 @@ def test_a_run_during_which_the_source_changed_is_an_error_row(tmp_path, monkeyp
     (other,) = [run_config(cfgs[0], code_hash="e" * 16)]
     assert other["status"] == "error" and other["metric"] is None
     assert "CodeChangedError" in other["error"] and "e" * 16 in other["error"] and other["code_hash"] == here
+    assert "hard_iou_loss_best" not in other and "best_step" not in other  # no results of unknown code
     monkeypatch.setattr(sweep, "read_source_hash", lambda backend="torch": "d" * 16)  # edited mid-run
     rows = execute(cfgs, tmp_path / "r.jsonl", workers=0, progress=False)
     assert [r["status"] for r in rows] == ["error", "error"]

@@ -125,6 +125,29 @@ def test_tune_says_so_when_not_even_the_probe_finishes(tmp_path, monkeypatch):
     assert 1 <= len(load_rows(tmp_path / "t.jsonl")) < 3  # what finished is kept (a resume skips it)
 
 
+def test_a_slower_machine_than_predicted_still_leaves_time_to_refine(tmp_path, monkeypatch):
+    """Runs after the probe take 1 s more than it predicts (~0.3 s): the coarse stage stops at its
+    share of the budget (before, it ran to the deadline and nothing was refined). Then the coarse
+    grid alone with fine_steps=() (CLI --fine-steps ''): nothing refined, no fine runs."""
+    import time
+    import gendr_experiments.sweep as sweep
+    real, calls = sweep.run_config, []
+
+    def slower_after_the_probe(*args, **kw):
+        calls.append(1)
+        if len(calls) > 2:
+            time.sleep(1.0)
+        return real(*args, **kw)
+    monkeypatch.setattr(sweep, "run_config", slower_after_the_probe)
+    res = tune("tetrahedron", budget=16.0, store=tmp_path / "t.jsonl", base=dict(TINY, steps=2), workers=0,
+               taus=(0.1, 0.02), fine_steps=(-0.25, 0.25))
+    assert any(b["refined"] for b in res.ranking) and res.plan["fine_instances"] >= 1
+    coarse_only = tune("tetrahedron", budget=3.0, store=tmp_path / "c.jsonl", base=dict(TINY, steps=2), workers=0,
+                       taus=(0.1, 0.02), fine_steps=())
+    assert not any(b["refined"] for b in coarse_only.ranking)
+    assert {r["tau"] for r in load_rows(tmp_path / "c.jsonl")} == {0.1, 0.02}
+
+
 def test_tune_does_not_rerun_a_coarse_tau(tmp_path):
     """Fine steps of a decade around squared-style widths sqrt(0.1), sqrt(0.001): the step onto the
     other coarse width is that run, not a rerun at the 6-digit rounding 0.0316228 / 0.316228."""

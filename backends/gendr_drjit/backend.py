@@ -246,7 +246,8 @@ class DrJitBackend:
             dt = str(x.dtype).replace("torch.", "")
             if like is None and x.dtype not in (torch.float32, torch.float64):
                 raise DTypeError(f"{name} must be float32 or float64, got {x.dtype}")
-            if like is not None and (x.dtype in (torch.float16, torch.bfloat16, torch.bool) or x.dtype.is_complex):
+            if like is not None and not (x.dtype in (torch.float32, torch.float64) or not (
+                    x.dtype.is_floating_point or x.dtype.is_complex or x.dtype == torch.bool)):  # (gendr_torch's rule)
                 raise DTypeError(f"{name} must be float32, float64 or integers, got {x.dtype}")
             # (colours, like=...: any torch dtype is cast to the vertices' dtype, as the torch backend does)
             a = x.detach().cpu().to(torch.float64).numpy()

@@ -24,12 +24,12 @@ class UsageError(ValueError):
     """A bad option value found after parsing: one line naming it, exit status 2 (:func:`main`)."""
 
 
-def _floats(text, option="a list option"):
+def _floats(text, option="a list option", empty_ok=False):
     try:
         out = [float(x) for x in text.split(",") if x.strip()]
     except ValueError:
         raise UsageError(f"{option} expects comma-separated numbers, got {text!r}") from None
-    return _some(out, text, option)
+    return out if empty_ok else _some(out, text, option)
 
 
 def _some(values, text, option):
@@ -352,7 +352,7 @@ def search_plan(a, instances) -> dict:
         if not all(v > 0 and v != float("inf") for v in values):
             raise UsageError(f"{option} must be numbers > 0, got {values}")
     return dict(instances=instances, taus=taus, lrs=lrs, seeds=_ints(a.seeds, "--seeds"), base=base,
-                extra_axes=extra, refine=not a.no_refine, fine_steps=tuple(_floats(a.fine_steps, "--fine-steps")))
+                extra_axes=extra, refine=not a.no_refine, fine_steps=tuple(_floats(a.fine_steps, "--fine-steps", empty_ok=True)))
 
 
 def cmd_sweep(a) -> int:
@@ -570,7 +570,7 @@ def cmd_tune(a) -> int:
     base = _base_settings(a, backend=a.backend)
     res = tune(a.target, budget=a.budget, store=a.output, protocol=a.protocol, instances=instances,
                taus=_floats(a.taus, "--taus"), lrs=_floats(a.lrs, "--lrs") if a.lrs else None,
-               seeds=_ints(a.seeds, "--seeds"), fine_steps=tuple(_floats(a.fine_steps, "--fine-steps")),
+               seeds=_ints(a.seeds, "--seeds"), fine_steps=tuple(_floats(a.fine_steps, "--fine-steps", empty_ok=True)),
                base=base, workers=a.workers, top=a.top, other_code=a.other_code)  # (errors: main)
     p = res.plan
     print(f"{res.runs} new runs in {res.seconds:.1f} s (budget {p['budget_s']:g} s): coarse grid for "

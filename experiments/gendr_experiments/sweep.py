@@ -132,6 +132,7 @@ def run_config(cfg: dict, device: str = "cpu", code_hash: str | None = None) -> 
     t0, c0 = time.perf_counter(), time.process_time()
     row = {"key": config_hash(cfg), "experiment": cfg["experiment"], "instance": cfg.get("instance"),
            "protocol": cfg.get("protocol")}
+    res = {}
     try:
         dist, tcn, label = instance_from_config(cfg)
         row.update(label=label, distribution=dist.label().replace("+sq", ""), squared=bool(dist.squared),
@@ -161,10 +162,12 @@ def run_config(cfg: dict, device: str = "cpu", code_hash: str | None = None) -> 
     row["code_hash"] = ran_with
     on_disk = read_source_hash(backend)
     if on_disk != ran_with or (code_hash is not None and code_hash != ran_with):
+        for k in res:  # no results of unknown code (successes, errors, ...: aggregate would read them)
+            row.pop(k, None)
+        started = f", {code_hash} when the sweep started" if code_hash is not None else ""
         row.update(status="error", metric=None,
-                   error=f"CodeChangedError: the source changed while this sweep ran: code_hash {ran_with} "
-                         f"in this process, {code_hash or ran_with} when the sweep started, {on_disk} on disk "
-                         f"now; which code ran is unknown: run it again")
+                   error=f"CodeChangedError: the source changed while this run ran: code_hash {ran_with} in this "
+                         f"process{started}, {on_disk} on disk now; which code ran is unknown: run it again")
     row["finished_at"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
     return _clean(row)
 
@@ -403,13 +406,16 @@ def aggregate(rows) -> dict:
            "errors": sum(r.get("status") == "error" for r in rows)}
     if exp == "pose":
         if any("pairs" in r for r in rows):  # lookat rows: a batch of pairs each
-            pairs = sum(int(r.get("pairs") or r["config"].get("pairs", 1)) for r in rows)
-            sr = sum(int(r.get("successes") or 0) for r in rows) / pairs
-            err = [_finite_or(e, 180.0) for r in rows
-                   for e in (r.get("residual_deg") or [None] * int(r.get("pairs") or r["config"].get("pairs", 1)))]
+            def n_pairs(r):
+                return int(r.get("pairs") or r["config"].get("pairs", 1))
+            ok = [r.get("status") == "ok" for r in rows]  # an error row's pairs all failed, at 180°
+            pairs = sum(n_pairs(r) for r in rows)
+            sr = sum(int(r.get("successes") or 0) for r, o in zip(rows, ok) if o) / pairs
+            err = [_finite_or(e, 180.0) for r, o in zip(rows, ok)
+                   for e in ((r.get("residual_deg") if o else None) or [None] * n_pairs(r))]
             out.update(pairs=pairs, success_rate=sr, score=(1.0 - sr) + 1e-6 * float(np.mean(err)) / 180.0)
         else:
-            sr = float(np.mean([bool(r.get("success")) for r in rows]))
+            sr = float(np.mean([r.get("status") == "ok" and bool(r.get("success")) for r in rows]))
             out.update(success_rate=sr, score=(1.0 - sr) + 1e-6 * out["mean_metric"] / 180.0)
     else:
         out["score"] = out["mean_metric"]

@@ -259,9 +259,11 @@ def tune(target: str, *, budget: float, store="tune.jsonl", protocol: str = "qui
     def fits(configs, seconds_left):
         return sum(cal.predict(feats(c)) for c in configs) / parallel + overhead <= seconds_left
 
-    def pending(configs):
-        done_keys = {r["key"] for r in st.rows()}
-        return [c for c in configs if _key(c) not in done_keys]
+    def finished():  # (one read of the store per phase: it grows with every run)
+        return {r["key"] for r in st.rows()}
+
+    def pending(configs, done):
+        return [c for c in configs if _key(c) not in done]
 
     # 1. probe: the first candidate's coarse runs time this machine and problem
     run_stage(coarse[cands[0]], "probe (first candidate, coarse grid)", deadline)
@@ -288,37 +290,42 @@ def tune(target: str, *, budget: float, store="tune.jsonl", protocol: str = "qui
         ran = 0
         left = deadline - time.monotonic()
         todo, new = [], []
+        done = finished()
         for i in cands:
-            missing = pending(coarse[i])
+            missing = pending(coarse[i], done)
             if missing and fits(todo + missing, COARSE_SHARE * left):
                 todo += missing
                 new.append(i)
         if new:
             say(f"round {rounds}, coarse: {len(new)} more candidates × {len(taus)} τ × {len(lrs)} lr × {len(seeds)} seed")
             ran += len(run_stage(todo, "coarse", time.monotonic() + COARSE_SHARE * left))
-        tried = [i for i in cands if not pending(coarse[i])]
+        done = finished()
+        tried = [i for i in cands if not pending(coarse[i], done)]
         all_coarse = [c for i in tried for c in coarse[i]]
         cal.fit(_rows_of(st, all_coarse + [c for cfgs in refined.values() for c in cfgs]), feats, warm)
         best = summarize_best(_rows_of(st, all_coarse), "shape")
         order = sorted(best, key=lambda i: best[i]["score"])
-        order = [i for i in order[:max(int(top), math.ceil(REFINE_SHARE * len(order)))] if i not in refined]
+        order = [i for i in order[:max(int(top), math.ceil(REFINE_SHARE * len(order)))] if i not in refined
+                 ] if fine_steps else []  # (no fine steps: the coarse grid only)
         left = deadline - time.monotonic()
         fine, picked = [], {}
         for i in order:
             b = best[i]
             cfgs = expand("shape", base, instances=[spec_of[i]],
                           axes={"tau": fine_grid(b["tau"], fine_steps, taus), "lr": [b["lr"]], "seed": seeds})
-            missing = pending(cfgs)
+            missing = pending(cfgs, done)
             if left > 0 and fits(fine + missing, left):
                 fine += missing
                 picked[i] = cfgs
         if picked:
             say(f"round {rounds}, fine: {len(picked)} instances × {len(fine_steps)} τ around their best")
             ran += len(run_stage(fine, "fine", deadline))
-            refined.update((i, c) for i, c in picked.items() if not pending(c))
+            done = finished()
+            refined.update((i, c) for i, c in picked.items() if not pending(c, done))
         if not ran:
             break
-    tried = [i for i in cands if not pending(coarse[i])]
+    done = finished()
+    tried = [i for i in cands if not pending(coarse[i], done)]
     if not tried:
         raise ParameterError(f"tune: no candidate's coarse grid ({len(coarse[cands[0]])} runs) finished within "
                              f"budget={budget!r} s; raise --budget (finished runs resume)")
