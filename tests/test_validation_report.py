@@ -94,6 +94,74 @@ def test_gradient_jobs_match_serial(tmp_path):
         assert b["passed"] == a["passed"]
 
 
+def _tiny_run(tmp_path, **kw):
+    args = dict(backends=["torch"], instances=[271], scenes=["cube"], outdir=str(tmp_path), size=(12, 16),
+                cameras=["perspective"], limit_instances=["heaviside|or"])
+    return report.run(**(args | kw))
+
+
+def test_a_run_that_checked_less_than_asked_fails(tmp_path, monkeypatch, capsys):
+    """Each of these printed PASSED before, or ended the run without summary.json: no gradient
+    check at all, a gradient check that raised, an AD derivative that is NaN at sampled outputs
+    (the NaN samples were dropped from the comparison)."""
+    import numpy as np
+    from gendr_validation import gradcheck
+    base = _tiny_run(tmp_path / "ok")
+    assert base["passed"] and not base["missing"]
+    none = _tiny_run(tmp_path / "none", instances=[])
+    assert not none["passed"] and none["gradients"]["checks"] == 0
+    assert "no check ran" in capsys.readouterr().out
+
+    def boom(*a, **k):
+        raise RuntimeError("simulated gradient bug")
+    monkeypatch.setattr(gradcheck, "check_instance", boom)
+    crashed = _tiny_run(tmp_path / "crash")
+    assert not crashed["passed"] and (tmp_path / "crash" / "summary.json").exists()
+    (row,) = crashed["gradients"]["rows"]
+    assert row["param"].startswith("error: RuntimeError: simulated gradient bug") and not row["passed"]
+    monkeypatch.undo()
+
+    real = gradcheck.TorchAdapter.per_pixel
+
+    def half_nan(self, *a, **k):
+        out = np.array(real(self, *a, **k), dtype=float)
+        out[::2] = np.nan
+        return out
+    monkeypatch.setattr(gradcheck.TorchAdapter, "per_pixel", half_nan)
+    nan = _tiny_run(tmp_path / "nan")
+    assert not nan["passed"] and any(r["param"] == "vertices" and not r["passed"] for r in nan["gradients"]["rows"])
+
+
+def test_requested_or_broken_backends_and_references_that_do_not_run_fail(monkeypatch):
+    import gendr
+    from gendr_validation import hardlimit
+    real = gendr.Renderer
+
+    def broken_drjit(*a, backend="torch", **k):
+        if backend == "drjit":
+            raise RuntimeError("simulated construction bug")
+        return real(*a, backend=backend, **k)
+    monkeypatch.setattr(gendr, "Renderer", broken_drjit)
+    notes, missing = [], []
+    assert hardlimit.usable_backends(None, notes, missing) == ["torch"]  # broken: fails even unasked
+    assert missing == ["backend drjit: RuntimeError: simulated construction bug"]
+
+    def unavailable(*a, backend="torch", **k):
+        if backend == "drjit":
+            raise gendr.BackendUnavailableError("simulated missing extra")
+        return real(*a, backend=backend, **k)
+    monkeypatch.setattr(gendr, "Renderer", unavailable)
+    missing = []
+    assert hardlimit.usable_backends(None, [], missing) == ["torch"] and missing == []  # not asked: a note
+    assert hardlimit.usable_backends(["torch", "drjit"], [], missing) == ["torch"] and len(missing) == 1
+    monkeypatch.setattr(hardlimit, "get_reference", lambda n: (_ for _ in ()).throw(
+        hardlimit.ReferenceUnavailableError(f"{n} simulated")))
+    missing = []
+    assert hardlimit.open_references(["pyrender-egl"], [], missing) == {} and missing == [
+        "reference pyrender-egl: pyrender-egl simulated"]
+    assert hardlimit.open_references(["pyrender-egl"], [], None) == {}  # the default set: a note only
+
+
 @pytest.mark.parametrize("bad", [0, -1, 1.5, True])
 def test_bad_jobs_is_rejected(tmp_path, bad):
     import gendr

@@ -109,6 +109,7 @@ def main(argv=None) -> int:
     for b in names:
         if b not in COMPUTE:
             print(f"{b}: no golden computer (add one to COMPUTE in {__file__})")
+            status = 1  # asked for and not compared: not a pass
             continue
         new = compute(b)
         if os.path.exists(path(b)):
@@ -127,6 +128,9 @@ def main(argv=None) -> int:
             np.savez_compressed(path(b), **{k: np.asarray(v, np.float64) for k, v in new.items()})
             print(f"{b}: wrote {path(b)} ({os.path.getsize(path(b)) / 1e3:.0f} kB)")
             status = 0
+    if not names:
+        print("no backend to compare (none usable)")
+        return 1
     return status
 
 

@@ -266,8 +266,10 @@ def check_instance(adapter, inst, *, H=H_DEFAULT, W=W_DEFAULT, seed=0, params=PA
         else:
             idx = _sample_outputs(fd, rng)
             ad = _scatter(adapter.per_pixel(inst, mesh, cam, tau, H, W, param, u, idx, shading), idx, fd.shape)
-        mask = np.isfinite(ad)
-        err = rel_error(ad[mask], fd[mask])
+        mask = np.zeros(fd.size, dtype=bool)
+        mask[np.asarray(idx).reshape(-1)] = True  # the sampled outputs, all of them: a NaN / inf AD
+        mask = mask.reshape(fd.shape)             # derivative there is an error, not a skipped sample
+        err = np.where(np.isfinite(ad[mask]), rel_error(ad[mask], fd[mask]), np.inf)
         loss_fd = float((fd * weights).sum())
         loss_ad = adapter.loss_grad(inst, mesh, cam, tau, H, W, weights, param, u, shading)
         loss_err = abs(loss_ad - loss_fd) / max(abs(loss_fd), FLOOR)

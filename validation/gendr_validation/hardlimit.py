@@ -177,8 +177,9 @@ def check_scene_camera(scene_name, mesh, camera_name, camera, H, W, backends, re
     return chk
 
 
-def open_references(names, notes=None):
-    """{name: Reference} of those that can run; unavailable ones are skipped with a note."""
+def open_references(names, notes=None, missing=None):
+    """{name: Reference} of those that can run; unavailable ones are skipped with a note, and, when
+    ``missing`` is a list (the names were asked for), recorded there too (the run then fails)."""
     out = {}
     for n in names:
         try:
@@ -186,13 +187,17 @@ def open_references(names, notes=None):
         except ReferenceUnavailableError as e:
             if notes is not None:
                 notes.append(f"reference {n} skipped: {e}")
+            if missing is not None:
+                missing.append(f"reference {n}: {e}")
     return out
 
 
-def usable_backends(names=None, notes=None):
+def usable_backends(names=None, notes=None, missing=None):
     """Registered backends that import (``gendr.available_backends()``); others skipped with a note.
     A name that is not registered at all is an :class:`~gendr.UnknownNameError` (a typo, not a
-    missing extra)."""
+    missing extra). With a ``missing`` list, a backend that imports but fails to construct (a bug,
+    not a missing extra) is recorded there, and so is any unavailable one of ``names`` (asked for):
+    the run then fails rather than pass on fewer backends."""
     registered = sorted(gendr.available_backends())
     unknown = [n for n in names or () if n not in registered]
     if unknown:
@@ -201,13 +206,12 @@ def usable_backends(names=None, notes=None):
     for n in (names or sorted(gendr.available_backends())):
         try:
             gendr.Renderer("heaviside", "or", tau=1.0, image_size=(2, 2), backend=n, blend=None)
-        except (gendr.BackendUnavailableError, ImportError, gendr.UnknownNameError) as e:
+        except Exception as e:  # report, don't crash
             if notes is not None:
                 notes.append(f"backend {n} skipped: {type(e).__name__}: {e}")
-            continue
-        except Exception as e:  # a backend that imports but cannot construct: report, don't crash
-            if notes is not None:
-                notes.append(f"backend {n} skipped: {type(e).__name__}: {e}")
+            unavailable = isinstance(e, (gendr.BackendUnavailableError, ImportError))
+            if missing is not None and (names or not unavailable):
+                missing.append(f"backend {n}: {type(e).__name__}: {e}")
             continue
         out.append(n)
     return out

@@ -94,6 +94,7 @@ class PyrenderReference(Reference):
         self.pyrender = _import_pyrender(platform)
         self._renderers = {}
         atexit.register(self.close)
+        self._renderer(8, 8)  # a context now: one that cannot be made is unavailable, not a crash mid-run
 
     def _renderer(self, H, W):
         r = self._renderers.get((H, W))

@@ -94,12 +94,18 @@ _ADAPTER_CACHE = {}
 
 
 def _grad_task(task):
-    """One gradient check (backend name, grid index, keep images) -> (results, images or None)."""
+    """One gradient check (backend name, grid index, keep images) -> (results, images or None). An
+    exception is a failed check (param "error: ..."), not the end of the run."""
     b, index, keep = task
-    if b not in _ADAPTER_CACHE:
-        _ADAPTER_CACHE[b] = gradcheck.ADAPTERS[b]()
-    inst = gradcheck.instance_by_index(index)
-    return gradcheck.check_instance(_ADAPTER_CACHE[b], inst, keep_images=keep)
+    try:
+        if b not in _ADAPTER_CACHE:
+            _ADAPTER_CACHE[b] = gradcheck.ADAPTERS[b]()
+        inst = gradcheck.instance_by_index(index)
+        return gradcheck.check_instance(_ADAPTER_CACHE[b], inst, keep_images=keep)
+    except Exception as e:
+        inf, nan = float("inf"), float("nan")
+        return [gradcheck.GradResult(b, index, f"#{index}", f"error: {type(e).__name__}: {e}"[:300], nan, inf, inf,
+                                     nan, nan, inf, nan, 0.0)], None
 
 
 def _set_threads(n):
@@ -158,8 +164,10 @@ def _run(backends, instances, scenes, quick, outdir, references, limit_instances
     stream = stream or sys.stdout
     t_start = time.perf_counter()
     notes = []
-    bnames = hardlimit.usable_backends(backends, notes)
-    refs = hardlimit.open_references(DEFAULT_REFERENCES if references is None else references, notes)
+    missing = []  # asked for (or broken) but not checked: the run fails
+    bnames = hardlimit.usable_backends(backends, notes, missing)
+    refs = hardlimit.open_references(DEFAULT_REFERENCES if references is None else references, notes,
+                                     None if references is None else missing)
     H, W = size or (QUICK_SIZE if quick else FULL_SIZE)
     scene_names = list(scenes) if scenes else list(QUICK_SCENES if quick else gscenes.SCENES)
     meshes = {}
@@ -271,10 +279,12 @@ def _run(backends, instances, scenes, quick, outdir, references, limit_instances
             "depth_max_rel": max([r.depth_max_rel for r in gbuf if not r.error], default=0.0),
             "rows": [asdict(r) | {"passed": r.passed} for r in gbuf], "seconds": t_gb},
         "notes": notes,
+        "missing": missing,
     }
     summary["gradients"]["parity_failed"] = sum(not r["passed"] for r in parity)
     summary["passed"] = (summary["hard_limit"]["failed"] == 0 and summary["gradients"]["failed"] == 0
                          and summary["gradients"]["parity_failed"] == 0 and bool(bnames) and bool(refs)
+                         and not missing and (summary["gradients"]["checks"] > 0 or not gb)
                          and summary["textures"]["failed"] == 0 and summary["gbuffer"]["failed"] == 0)
     summary["seconds"] = time.perf_counter() - t_start
     with open(os.path.join(outdir, "summary.json"), "w") as f:
@@ -647,12 +657,18 @@ def print_summary(s, stream=None):
             w(f"    FAIL {r['scene']}/{r['camera']}/{r['backend']} vs {r['reference']} {r['filter']}: {r['differ']} px "
               f"(max {r['max_abs_diff']:.1e}) {r['error'][:150]}\n")
     if gb is not None:
+        face_ids = any(r["face_id_differ"] >= 0 for r in gb["rows"])  # (only references that give face ids)
         w(f"  G-buffer: {gb['checks'] - gb['failed']}/{gb['checks']} comparisons pass; differing px: mask "
-          f"{gb['mask_differ_total']}, depth {gb['depth_differ_total']}, face id {gb['face_id_differ_total']}; "
+          f"{gb['mask_differ_total']}, depth {gb['depth_differ_total']}, face id "
+          f"{gb['face_id_differ_total'] if face_ids else 'n/a'}; "
           f"max rel. depth diff {gb['depth_max_rel']:.1e}; {gb['seconds']:.1f}s\n")
         for r in [r for r in gb["rows"] if not r["passed"]][:5]:
             w(f"    FAIL {r['scene']}/{r['camera']}/{r['backend']} vs {r['reference']}: mask {r['mask_differ']}, depth "
               f"{r['depth_differ']}, face id {r['face_id_differ']} {r['error'][:150]}\n")
     for n in s["notes"]:
         w(f"  note: {n}\n")
+    for m in s.get("missing", []):
+        w(f"  NOT CHECKED (asked for, or broken): {m}\n")
+    if s["gradients"]["checks"] == 0:
+        w("  gradients: no check ran (no instance, or no backend with a gradient adapter)\n")
     w(f"  {'PASSED' if s['passed'] else 'FAILED'} in {s['seconds']:.1f}s\n")
