@@ -538,7 +538,8 @@ def _frank_inverse(ops, s, p):
     else:
         s_switch = s_half
     return _split_at(ops, s, s_switch,
-                     lambda s: -ops.log1p((1.0 / _a(p) - 1.0) * -ops.expm1(-s)) / q,
+                     # (1 − p)/p, not 1/p − 1: that cancels near p = 1 (rel. error ~1e-16/|p − 1|)
+                     lambda s: -ops.log1p((1.0 - _a(p)) / _a(p) * -ops.expm1(-s)) / q,
                      lambda s: 1.0 - ops.log1p((_a(p) - 1.0) * ops.exp(-s)) / q)
 
 
