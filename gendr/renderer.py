@@ -148,6 +148,15 @@ def _dtype_name(value) -> str:
     return str(dtype).rsplit(".", 1)[-1].lower()  # torch.int64, VarType.Int32 -> int64, int32
 
 
+def check_colour_dtype(dtype, name: str) -> None:
+    """DTypeError unless colours of ``dtype`` (a torch dtype; the backends' rule for colour tensors)
+    may be cast to the vertices' dtype: float32/64 or integers, as for NumPy colours; not complex
+    (the cast drops the imaginary part), bool or half precision."""
+    kind = str(dtype).rsplit(".", 1)[-1]
+    if not (kind in ("float32", "float64") or kind.startswith(("int", "uint"))):
+        raise DTypeError(f"{name} must be float32, float64 or integers, got {dtype}")
+
+
 def _check_params_fit(settings, dtype: str, tau_value: float) -> None:
     """ParameterError for τ or a distribution or T-conorm parameter (a number) that a float32 render
     cannot hold: beyond float32's range or below its smallest normal number in magnitude (frank

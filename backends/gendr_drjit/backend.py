@@ -16,6 +16,7 @@ import drjit as dr
 
 from gendr.cameras import VEC3
 from gendr.errors import BackendUnavailableError, DTypeError, ParameterError, ShapeError
+from gendr.renderer import check_colour_dtype
 
 from . import raster
 from .ops import DrJitOps
@@ -246,9 +247,8 @@ class DrJitBackend:
             dt = str(x.dtype).replace("torch.", "")
             if like is None and x.dtype not in (torch.float32, torch.float64):
                 raise DTypeError(f"{name} must be float32 or float64, got {x.dtype}")
-            if like is not None and not (x.dtype in (torch.float32, torch.float64) or not (
-                    x.dtype.is_floating_point or x.dtype.is_complex or x.dtype == torch.bool)):  # (gendr_torch's rule)
-                raise DTypeError(f"{name} must be float32, float64 or integers, got {x.dtype}")
+            if like is not None:
+                check_colour_dtype(x.dtype, name)
             # (colours, like=...: any torch dtype is cast to the vertices' dtype, as the torch backend does)
             a = x.detach().cpu().to(torch.float64).numpy()
             return Input("torch", x, a, like.dtype if like is not None else dt)

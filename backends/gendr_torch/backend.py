@@ -5,6 +5,7 @@ import numpy as np
 import torch
 
 from gendr.errors import BackendUnavailableError, DTypeError, ParameterError
+from gendr.renderer import check_colour_dtype
 
 from . import raster
 from .ops import torch_ops
@@ -33,12 +34,6 @@ def torch_device(device) -> torch.device:
     return dev
 
 
-
-def _colour_dtype(dtype) -> bool:
-    """What a colour tensor may be (cast to the vertices' dtype): float32/64 or integers, as for
-    NumPy colours; not complex (the cast drops the imaginary part), bool or half precision."""
-    return dtype in _FLOATS or not (dtype.is_floating_point or dtype.is_complex or dtype == torch.bool)
-
 class TorchBackend:
     """Renders with PyTorch on the device of the inputs (or ``device=`` for NumPy inputs).
 
@@ -59,8 +54,8 @@ class TorchBackend:
     def float_array(self, x, name, like=None):
         if isinstance(x, torch.Tensor):
             t = x
-            if like is not None and not _colour_dtype(t.dtype):
-                raise DTypeError(f"{name} must be float32, float64 or integers, got {t.dtype}")
+            if like is not None:
+                check_colour_dtype(t.dtype, name)
         else:
             a = np.asarray(x)
             # colours (cast to the vertices' dtype) may be given as integers; geometry may not

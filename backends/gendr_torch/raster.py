@@ -220,6 +220,12 @@ def swap_corner_parts(gP, X, Y):
     return torch.where(swap[..., None], gP[..., [2, 3, 0, 1]], gP)
 
 
+def _zero_area(cross, e1, e2):
+    """[..., 1] True where |e1 × e2| is rounding noise (ZERO_AREA_ULPS, gendr.renderer)."""
+    tol = (ZERO_AREA_ULPS * torch.finfo(cross.dtype).eps) ** 2
+    return (cross * cross).sum(-1, keepdim=True) <= tol * (e1 * e1).sum(-1, keepdim=True) * (e2 * e2).sum(-1, keepdim=True)
+
+
 def _shading_data(settings, camera, P, H, W, verts, faces, tri, colors, per_face, B, texture=None, normals_out=False):
     """Barycentric coefficients (affine in screen X, Y), view depths and lit corner colours (with a
     texture: the lighting factor alone, then the corners' uvs); with ``normals_out`` the corners'
@@ -900,12 +906,6 @@ def _texel(settings, fc, sh, b, face):
     top = torch.lerp(at(r0, c0), at(r0, c1), fx)
     bot = torch.lerp(at(r1, c0), at(r1, c1), fx)
     return torch.lerp(top, bot, fy)
-
-
-def _zero_area(cross, e1, e2):
-    """[..., 1] True where |e1 × e2| is rounding noise (ZERO_AREA_ULPS, gendr.renderer)."""
-    tol = (ZERO_AREA_ULPS * torch.finfo(cross.dtype).eps) ** 2
-    return (cross * cross).sum(-1, keepdim=True) <= tol * (e1 * e1).sum(-1, keepdim=True) * (e2 * e2).sum(-1, keepdim=True)
 
 
 def render(settings, camera, verts, faces, colors, per_face, texture=None, compile=False):
