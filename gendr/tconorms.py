@@ -381,6 +381,31 @@ def _log_expm1_ratio(ops, z):
     return ops.where(small, z * (0.5 + z / 24.0), ops.log(ops.expm1(zs) / zs))
 
 
+#: below this argument _log1p_ratio and _expm1_ratio use their series (truncation < 1e-18 relative;
+#: the closed forms' derivatives lose ~eps/z to cancellation just above it: 1e-14 in float64)
+_SERIES_AT = 0.01
+
+
+def _log1p_ratio(ops, z):
+    """log1p(z)/z for z >= 0, smooth through z = 0 (Taylor series 1 − z/2 + z²/3 − … there)."""
+    small = z < _SERIES_AT
+    zs, zb = ops.where(small, z, 0.0), ops.where(small, 1.0, z)
+    series = 0.0 * zs
+    for k in range(8, -1, -1):
+        series = (-1.0) ** k / (k + 1) + zs * series
+    return ops.where(small, series, ops.log1p(zb) / zb)
+
+
+def _expm1_ratio(ops, y):
+    """expm1(y)/y for y >= 0, smooth through y = 0 (Taylor series 1 + y/2 + y²/6 + … there)."""
+    small = y < _SERIES_AT
+    ys, yb = ops.where(small, y, 0.0), ops.where(small, 1.0, y)
+    series = 0.0 * ys
+    for k in range(6, -1, -1):
+        series = 1.0 / math.factorial(k + 1) + ys * series
+    return ops.where(small, series, ops.expm1(yb) / yb)
+
+
 def _binarize(ops, m):
     return ops.where(m >= 0.5, ops.full_like(m, 1.0), ops.full_like(m, 0.0))
 
@@ -465,6 +490,8 @@ def _hamacher_binary(ops, a, b, p):
 
 def _hamacher_generator(ops, x, l, p):
     # g = log((p + (1 − p)(1 − x))/(1 − x)) = log1p(p·x/(1 − x))   (p > 0);   x/(1 − x)   (p = 0)
+    if isinstance(p, Learnable):
+        return _hamacher_scaled_generator(ops, x, l, p)
     if p == 0.0:
         return _inf_guard(ops, lambda x, l: x * ops.exp(-l), (x, l), (0.5, _LOG_HALF))
     log_p = _log(ops, p)
@@ -475,11 +502,52 @@ def _hamacher_generator(ops, x, l, p):
 
 
 def _hamacher_inverse(ops, s, p):
+    if isinstance(p, Learnable):
+        return _hamacher_scaled_inverse(ops, s, p.array)
     if p == 0.0:  # s/(1 + s), written as 1 − 1/(1 + s) for large s (no inf/inf)
         return _split_at(ops, s, 1.0, lambda s: s / (1.0 + s), lambda s: 1.0 - 1.0 / (1.0 + s))
     # x = expm1(s)/(expm1(s) + p) = w/(w + p·u), w = 1 − e^−s, u = e^−s: denominator >= min(1, p)
     w, u = -ops.expm1(-s), ops.exp(-s)
     return w / (w + _a(p) * u)
+
+
+# A learnable p needs ∂/∂p through p = 0, where the generator above switches form (its p = 0 branch
+# has no p in it: ∂/∂p was 0 there, and inaccurate for tiny p). g/p is a generator of the same
+# T-conorm and is smooth in p through 0: log1p(p·o)/p → o (o = x/(1 − x), the odds), with inverse
+# r/(1 + r), r = expm1(p·s)/p → s. The float p keeps the unscaled form: the backends' odds-product
+# loops (TConormFamily.odds_factor) sum its values.
+def _hamacher_scaled_generator(ops, x, l, p):
+    P = p.array
+
+    def lower(x, l):  # x < 1/2: o <= 1
+        o = x * ops.exp(-l)
+        return o * _log1p_ratio(ops, P * o)
+
+    def upper(x, l):  # x >= 1/2: o·h(p·o) while p·o < 1, log-space above (o itself may overflow)
+        o = x * ops.exp(-l)
+        big = P * o >= 1.0  # (p = 0 and o = inf: NaN, False; the inf guard takes that case)
+        o_small = ops.where(big, 1.0, o)
+        P_big, x_big, l_big = ops.where(big, P, 1.0), ops.where(big, x, 0.5), ops.where(big, l, _LOG_HALF)
+        return ops.where(big, ops.softplus(ops.log(P_big) + ops.log(x_big) - l_big) / P_big,
+                         o_small * _log1p_ratio(ops, P * o_small))
+
+    return _split_half(ops, x, l, lower,
+                       lambda x, l: _inf_guard(ops, upper, (x, l), (0.5, _LOG_HALF), p=p), p=p)
+
+
+def _hamacher_scaled_inverse(ops, s, P):
+    finite = s < math.inf
+    s = ops.where(finite, s, 0.0)
+    y = P * s
+    small = y < _SERIES_AT
+    r = ops.where(small, s, 0.0) * _expm1_ratio(ops, ops.where(small, y, 0.0))
+    x_small = _split_at(ops, r, 1.0, lambda r: r / (1.0 + r), lambda r: 1.0 - 1.0 / (1.0 + r))
+    # y >= 0.01 (so p > 0): x = expm1(y)/(expm1(y) + p) = 1/(1 + p·u/w), w = 1 − e^−y, u = e^−y.
+    # (Not w/(w + p·u): its autograd ∂/∂w is 1/b − w/b² with b ≈ w, which cancels, and ∂y/∂p = s is
+    # huge: 2e-4 relative error in ∂x/∂p at p = 1e-12, s = 7e11.)
+    y_big, P_big = ops.where(small, 1.0, y), ops.where(small, 1.0, P)
+    w, u = -ops.expm1(-y_big), ops.exp(-y_big)
+    return ops.where(finite, ops.where(small, x_small, 1.0 / (1.0 + P_big * u / w)), 1.0)
 
 
 TCONORMS.add(TConormFamily(

@@ -656,15 +656,81 @@ def test_frank_near_p_1_against_60_digit_arithmetic():
     torch = pytest.importorskip("torch")
     from gendr_torch.ops import torch_ops
     xs = [0.00237, 0.2409, 9.7e-5, 0.2409]
-    mpmath.mp.dps = 60
 
     def exact(p):
         p = mpmath.mpf(p)
         prod = mpmath.fprod([p ** (1 - mpmath.mpf(x)) - 1 for x in xs]) / (p - 1) ** (len(xs) - 1)
         return 1 - mpmath.log(1 + prod) / mpmath.log(p)
-    for p0 in (1 - 1e-9, 1 - 1e-6, 1 + 1e-6, 1 + 1e-9):
+    with mpmath.workdps(60):
+        for p0 in (1 - 1e-9, 1 - 1e-6, 1 + 1e-6, 1 + 1e-9):
+            p = torch.tensor(p0, dtype=torch.float64, requires_grad=True)
+            a = tconorm("frank", p=p).aggregate(torch_ops, [torch.tensor(x, dtype=torch.float64) for x in xs])
+            (dp,) = torch.autograd.grad(a, p)
+            assert float(a) == pytest.approx(float(exact(p0)), rel=1e-12, abs=0)
+            assert float(dp) == pytest.approx(float(mpmath.diff(exact, mpmath.mpf(p0))), rel=1e-5)
+
+
+@pytest.mark.parametrize("p0", [0.0, 1e-300, 1e-12, 1e-6, 1e-3, 0.5, 4.0])
+def test_hamacher_learnable_p_near_zero_against_high_precision_arithmetic(p0):
+    """The n-ary Hamacher aggregate is A = r/(1 + r), r = (Π(1 + p·oᵢ) − 1)/p (oᵢ = xᵢ/(1 − xᵢ), the
+    odds), r = Σ oᵢ at p = 0, where ∂A/∂p = ((Σoᵢ)² − Σoᵢ²)/2/(1 + r)². A learnable p had ∂A/∂p = 0 at
+    p = 0 (the Hamacher sum's generator has no p), a relative error of 1e-3 at p = 1e-12, and 7e283
+    at p = 1e-300. Value and
+    ∂/∂p against mpmath (800 digits: p² down to 1e-600), float64:
+    odds 1e-5 … 2.3: relative 1e-12 (measured ≤ 3e-15). With an odds of 1e12 (x = 1 − 1e-12) the
+    backends' form, Σ∂g/∂p·∂A/∂s + ∂g⁻¹/∂p, cancels: terms of size ~0.5 give a derivative of 3e-12,
+    so absolute 1e-15 (~10 ulp of those terms; measured ≤ 2e-16). With an x = 1: A = 1, ∂A/∂p = 0."""
+    import mpmath
+    torch = pytest.importorskip("torch")
+    from gendr_torch.ops import torch_ops
+
+    def exact(xs, p):  # (A, ∂A/∂p)
+        o = [mpmath.mpf(x) / (1 - mpmath.mpf(x)) for x in xs]
+        if p == 0:
+            r, dr = mpmath.fsum(o), (mpmath.fsum(o) ** 2 - mpmath.fsum(v * v for v in o)) / 2
+        else:
+            p = mpmath.mpf(p)
+            prod = mpmath.fprod(1 + p * v for v in o)
+            r = (prod - 1) / p
+            dr = (prod * mpmath.fsum(v / (1 + p * v) for v in o) * p - (prod - 1)) / p ** 2
+        return float(r / (1 + r)), float(dr / (1 + r) ** 2)
+
+    moderate = [1e-5, 0.2409, 0.7]
+    cases = [(moderate, 1e-12, 0.0), (moderate + [1.0 - 1e-12], 0.0, 1e-15), (moderate + [1.0], None, None)]
+    for xs, rtol, atol in cases:
+        if rtol is None:
+            a_want, dp_want, rtol, atol = 1.0, 0.0, 0.0, 0.0
+        else:
+            with mpmath.workdps(800):
+                a_want, dp_want = exact(xs, p0)
         p = torch.tensor(p0, dtype=torch.float64, requires_grad=True)
-        a = tconorm("frank", p=p).aggregate(torch_ops, [torch.tensor(x, dtype=torch.float64) for x in xs])
+        a = tconorm("hamacher", p=p).aggregate(torch_ops, [torch.tensor(x, dtype=torch.float64) for x in xs])
         (dp,) = torch.autograd.grad(a, p)
-        assert float(a) == pytest.approx(float(exact(p0)), rel=1e-12, abs=0)
-        assert float(dp) == pytest.approx(float(mpmath.diff(exact, mpmath.mpf(p0))), rel=1e-5)
+        assert float(a) == pytest.approx(a_want, rel=1e-12, abs=0), xs
+        assert float(dp) == pytest.approx(dp_want, rel=rtol, abs=atol), xs
+        # the float setting's value (the unscaled generator) agrees
+        with np.errstate(divide="ignore"):
+            a_float = tconorm("hamacher", p=p0).aggregate(O, [np.array(x) for x in xs])
+        assert float(a_float) == pytest.approx(a_want, rel=1e-12, abs=0), xs
+
+
+@pytest.mark.parametrize("p0", [0.0, 1e-6, 0.5])
+def test_hamacher_learnable_p_float32_finite(p0):
+    """float32, learnable p at and near 0, odds from 1e-5 to overflow (x = 1, l = −inf; l = −200,
+    beyond float32's exp): value and ∂A/∂p finite, within float32 rounding of float64's."""
+    torch = pytest.importorskip("torch")
+    from gendr_torch.ops import torch_ops
+    xs, ls = [1e-5, 0.3, 0.999, 1.0], [math.log1p(-1e-5), math.log1p(-0.3), math.log1p(-0.999), -200.0]
+    out = {}
+    for dt in (torch.float32, torch.float64):
+        p = torch.tensor(p0, dtype=dt, requires_grad=True)
+        t = tconorm("hamacher", p=p)
+        parts = [torch.tensor(v, dtype=dt) for v in xs[:3]], [torch.tensor(v, dtype=dt) for v in ls[:3]]
+        a = t.aggregate(torch_ops, *parts)
+        (dp,) = torch.autograd.grad(a, p)
+        g = t.generator(torch_ops, torch.tensor(xs[3], dtype=dt), torch.tensor(ls[3], dtype=dt))
+        assert math.isfinite(float(a)) and math.isfinite(float(dp)), (dt, float(a), float(dp))
+        assert float(g) > 1e30 if p0 == 0.0 else math.isfinite(float(g)), (p0, float(g))
+        out[dt] = float(a), float(dp)
+    assert out[torch.float32][0] == pytest.approx(out[torch.float64][0], rel=1e-6)
+    assert out[torch.float32][1] == pytest.approx(out[torch.float64][1], rel=1e-4, abs=1e-6)
