@@ -1011,7 +1011,7 @@ class _Ctx:
         edges.K, edges.Xd, edges.Yd, edges.orient, edges.cull_lo = fc.K, fc.Xd, fc.Yd, fc.orient, fc.cull_lo
         edges.packed = fc.packed
         edges.F, edges.valid, edges.face_major = fc.F, fc.valid, fc.face_major
-        edges.grad_xy = bool(fc.ad) and dr.grad_enabled(fc.Xall)
+        edges.grad_xy = bool(fc.ad) and (dr.grad_enabled(fc.Xall) or dr.grad_enabled(fc.Yall))
         edges.n_corners = dr.width(fc.Xall) if fc.ad else 1
         self.parts, self.tau_grad, self.nsat, self.resid = (s, edges, T, ops, pix), tau_grad, None, resid
 
