@@ -103,3 +103,13 @@ class BackendUnavailableError(GendrError, ImportError):
     >>> issubclass(gendr.BackendUnavailableError, ImportError)
     True
     """
+
+
+
+def require_finite(backend, a, name):
+    """Raise :class:`InputValueError` naming the first non-finite entry of the backend array ``a``
+    as it will be rendered, i.e. after the cast to the render dtype (1e300 is inf in float32)."""
+    bad = backend.first_nonfinite(a)
+    if bad is not None:
+        dtype = str(a.dtype).replace("torch.", "")
+        raise InputValueError(f"{name} must be finite in {dtype} (the render dtype); {name}{list(bad[0])} = {bad[1]}")

@@ -17,7 +17,7 @@ from .distributions import Distribution, distribution as make_distribution
 from .gbuffer import GBuffer
 from .textures import check_settings as _check_texture_settings, check_textured_inputs
 from .errors import (BackendUnavailableError, DTypeError, InputValueError, ParameterError,
-                     ShapeError, UnknownNameError)
+                     ShapeError, UnknownNameError, require_finite)
 from .params import plain_number
 from .tconorms import TConorm, tconorm as make_tconorm
 
@@ -140,11 +140,11 @@ def _render_batch(verts, camera) -> int:
     return max(Bv, Bc)
 
 
-def _dtype_name(value) -> str:
+def _dtype_name(value, name: str) -> str:
     """"int64", "float32", ... of a NumPy, torch or Dr.Jit array, or of what NumPy makes of a list."""
     dtype = getattr(value, "dtype", None)
     if dtype is None:
-        dtype = np.asarray(value).dtype
+        dtype = host_array(value, name).dtype
     return str(dtype).rsplit(".", 1)[-1].lower()  # torch.int64, VarType.Int32 -> int64, int32
 
 
@@ -155,6 +155,24 @@ def check_colour_dtype(dtype, name: str) -> None:
     kind = str(dtype).rsplit(".", 1)[-1]
     if not (kind in ("float32", "float64") or kind.startswith(("int", "uint"))):
         raise DTypeError(f"{name} must be float32, float64 or integers, got {dtype}")
+
+
+def host_array(x, name: str, *, integer: bool = False) -> np.ndarray:
+    """``x`` (a list, NumPy array, anything ``np.asarray`` reads) as a NumPy array for a backend's
+    input checks: a ragged nesting is a ShapeError, and (``integer``) uint64 indices beyond int64,
+    which ``astype(np.int64)`` would wrap negative, an InputValueError naming the index."""
+    try:
+        a = np.asarray(x)
+    except ValueError as exc:  # NumPy on ragged nesting
+        raise ShapeError(f"{name} must be a regular array (equal-length rows), got a ragged nesting: {exc}") from None
+    return check_int64(a, name) if integer else a
+
+
+def check_int64(a: np.ndarray, name: str) -> np.ndarray:
+    """``a`` unchanged; InputValueError where a uint64 array holds an index beyond int64."""
+    if a.dtype == np.uint64 and a.size and int(a.max()) > np.iinfo(np.int64).max:
+        raise InputValueError(f"{name} holds index {int(a.max())}, beyond int64 (indices must lie in [0, count − 1])")
+    return a
 
 
 def _check_params_fit(settings, dtype: str, tau_value: float) -> None:
@@ -465,7 +483,7 @@ class Renderer:
         for name, value, n in (("vertex_colors", vertex_colors, V), ("face_colors", face_colors, faces_a.shape[0])):
             if value is None:
                 continue
-            dtype = _dtype_name(value)
+            dtype = _dtype_name(value, name)
             if dtype == "uint8":  # an 8-bit image's colours
                 raise DTypeError(f"{name} are uint8 (0..255?): give float albedo in [0, 1] (divide by 255), "
                                  f"as for textures")
@@ -479,16 +497,14 @@ class Renderer:
             if len(c.shape) not in (2, 3) or c.shape[-1] != 3 or c.shape[-2] != n:
                 raise ShapeError(f"{name} must have shape [B, {n}, 3] or [{n}, 3], got {list(c.shape)}")
             _check_batch(name, c.shape, 3, B)
-            bad = be.first_nonfinite(c)
-            if bad is not None:
-                raise InputValueError(f"{name} must be finite; {name}{list(bad[0])} = {bad[1]}")
+            require_finite(be, c, name)
             colors, per_face = c, name == "face_colors"
         settings = self.settings
         tau_value = settings.tau if isinstance(settings.tau, float) else _tau_value(settings.tau)
         if settings.tconorm.learnable or settings.distribution.learnable:  # re-read and re-check
             settings = replace(settings, tconorm=settings.tconorm.refreshed(),  # (an optimizer moves them)
                                distribution=settings.distribution.refreshed())
-        _check_params_fit(settings, _dtype_name(verts), tau_value)  # (the values this render uses)
+        _check_params_fit(settings, _dtype_name(verts, "vertices"), tau_value)  # (the values this render uses)
         if tex is not None:
             return be.render(settings, verts, faces_a, camera, colors, per_face, texture=tex)
         return be.render(settings, verts, faces_a, camera, colors, per_face)
@@ -531,19 +547,14 @@ class Renderer:
         verts = be.float_array(vertices, "vertices")
         if isinstance(faces, (list, tuple)) and len(faces) == 0:
             faces = np.zeros((0, 3), dtype=np.int64)  # no faces ([] is float64 to NumPy)
-        try:
-            faces_a = be.index_array(faces, "faces")
-        except ValueError as exc:  # NumPy on ragged nesting
-            raise ShapeError(f"faces must be an [F, 3] integer array: {exc}") from None
+        faces_a = be.index_array(faces, "faces")
         vshape = tuple(verts.shape)
         if len(vshape) not in (2, 3) or vshape[-1] != 3 or vshape[-2] < 1 or (len(vshape) == 3 and vshape[0] < 1):
             raise ShapeError(f"vertices must have shape [B, V, 3] or [V, 3] (B, V >= 1), got {list(vshape)}")
         if len(faces_a.shape) != 2 or faces_a.shape[1] != 3:
             raise ShapeError(f"faces must have shape [F, 3], got {list(faces_a.shape)}")
         V = vshape[-2]
-        bad = be.first_nonfinite(verts)
-        if bad is not None:
-            raise InputValueError(f"vertices must be finite; vertices{list(bad[0])} = {bad[1]}")
+        require_finite(be, verts, "vertices")
         if faces_a.shape[0] > 0:
             lo, hi = be.index_range(faces_a)
             if lo < 0 or hi >= V:

@@ -13,7 +13,8 @@ OpenGL/pyrender, so that the validation compares like with like):
 * ``bilinear``: the four texels around (x, y), weights (1 − fx, fx) × (1 − fy, fy) with
   ``fx = x − floor(x)``. ``nearest``: texel (floor((1 − v)·Ht), floor(u·Wt)). No mip-mapping.
 * Wrap: ``repeat`` (default; index mod size, as Mitsuba's default and OpenGL's ``GL_REPEAT``) or
-  ``clamp`` (clamp to the edge texel, ``GL_CLAMP_TO_EDGE`` / Mitsuba ``clamp``).
+  ``clamp`` (clamp to the edge texel, ``GL_CLAMP_TO_EDGE`` / Mitsuba ``clamp``). The samplers reduce
+  u and v to one period first (:func:`one_period`), so any finite uv samples exactly.
 * The lit colour of a pixel is ``texture(uv)·(ambient + diffuse·lambert)``, with uv and the Lambert
   factor interpolated with perspective-correct barycentrics (Gouraud lighting, as without texture).
 
@@ -25,18 +26,25 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import InputValueError, ParameterError, ShapeError
+from .errors import InputValueError, ParameterError, ShapeError, require_finite
 
 FILTERS = ("bilinear", "nearest")
 WRAPS = ("repeat", "clamp")
 
-__all__ = ["FILTERS", "WRAPS", "sample_numpy", "check_textured_inputs"]
+__all__ = ["FILTERS", "WRAPS", "sample_numpy", "one_period", "check_textured_inputs"]
 
 
 def _wrap_index(i, n, wrap):
     if wrap == "repeat":
         return np.mod(i, n)
     return np.clip(i, 0, n - 1)
+
+
+def one_period(u, wrap):
+    """``u`` (or v) reduced to what the wrap mode samples alike: u − floor(u) for ``repeat``, u
+    clipped to [−1, 2] for ``clamp`` (beyond it every u samples the edge texel). Same samples and
+    gradients, but texel coordinates stay small and exact for any finite uv (1e17, 3e38 in float32)."""
+    return u - np.floor(u) if wrap == "repeat" else np.clip(u, -1.0, 2.0)
 
 
 def sample_numpy(texture, uv, filter="bilinear", wrap="repeat"):
@@ -56,7 +64,7 @@ def sample_numpy(texture, uv, filter="bilinear", wrap="repeat"):
     tex = np.asarray(texture, dtype=np.float64)
     uv = np.asarray(uv, dtype=np.float64)
     Ht, Wt = tex.shape[:2]
-    u, v = uv[..., 0], uv[..., 1]
+    u, v = one_period(uv[..., 0], wrap), one_period(uv[..., 1], wrap)
     if filter == "nearest":
         c = _wrap_index(np.floor(u * Wt).astype(np.int64), Wt, wrap)
         r = _wrap_index(np.floor((1.0 - v) * Ht).astype(np.int64), Ht, wrap)
@@ -91,16 +99,12 @@ def check_textured_inputs(be, verts, faces_a, texture, uvs, uv_faces):
     tex = be.float_array(texture, "texture", like=verts)
     if len(tex.shape) not in (3, 4) or tex.shape[-1] not in (3, 4) or tex.shape[-2] < 1 or tex.shape[-3] < 1:
         raise ShapeError(f"texture must have shape [Ht, Wt, 3|4] or [B, Ht, Wt, 3|4], got {list(tex.shape)}")
-    bad = be.first_nonfinite(tex)
-    if bad is not None:
-        raise InputValueError(f"texture must be finite; texture{list(bad[0])} = {bad[1]}")
+    require_finite(be, tex, "texture")
     be.float_array(uvs, "uvs")
     uv = be.float_array(uvs, "uvs", like=verts)
     if len(uv.shape) not in (2, 3) or uv.shape[-1] != 2 or uv.shape[-2] < 1:
         raise ShapeError(f"uvs must have shape [T, 2] or [B, T, 2], got {list(uv.shape)}")
-    bad = be.first_nonfinite(uv)
-    if bad is not None:
-        raise InputValueError(f"uvs must be finite; uvs{list(bad[0])} = {bad[1]}")
+    require_finite(be, uv, "uvs")
     T, F = uv.shape[-2], faces_a.shape[0]
     if uv_faces is None:
         V = verts.shape[-2]

@@ -156,6 +156,91 @@ def test_texture_input_errors(backend):
         gendr.Renderer(texture_wrap="mirror")
 
 
+_QUAD_V = np.array([[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [1.0, 1.0, 0.0], [-1.0, 1.0, 0.0]])
+_QUAD_F = [[0, 1, 2], [0, 2, 3]]
+
+
+def _quad_samples(backend, tex, uvs, filt, wrap, dtype, size=64):
+    """An unlit screen-filling quad with per-corner ``uvs`` (affine in x, y: the orthographic camera
+    interpolates them linearly), hard blend: (the image's RGB, the uv at each pixel centre)."""
+    cam = gendr.OrthographicCamera(eye=(0.0, 0.0, 3.0), xmag=1.0, ymag=1.0)
+    r = gendr.Renderer(image_size=size, backend=backend, blend="hard", ambient=1.0, diffuse=0.0,
+                       texture_filter=filt, texture_wrap=wrap)
+    img = _np(r, r.render(_QUAD_V.astype(dtype), _QUAD_F, cam, texture=tex.astype(dtype), uvs=uvs.astype(dtype)))
+    c = 2.0 * (np.arange(size) + 0.5) / size - 1.0
+    X, Y = np.meshgrid(c, -c)  # pixel centres; row 0 at the top
+    lo, hi = uvs[0], uvs[2]  # corners (−1, −1) and (1, 1)
+    uv = np.stack([lo[0] + (X + 1) / 2 * (hi[0] - lo[0]), lo[1] + (Y + 1) / 2 * (hi[1] - lo[1])], -1)
+    return img[0, ..., :3], uv
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("dtype,n", [(np.float32, 47), (np.float64, 49)])
+@pytest.mark.parametrize("filt", ["bilinear", "nearest"])
+def test_repeat_wrap_at_sizes_whose_reciprocal_rounds(backend, dtype, n, filt):
+    """Dr.Jit wrapped i − n·floor(i/n) with i/n as i times the rounded 1/n: 47/47 < 1 in float32
+    (49/49 in float64), so the texel index n was read (and, backwards, written) out of bounds:
+    garbage up to 1e34 along the right and bottom borders, memory corrupted. Both backends now equal
+    the NumPy sampler, for uvs in [0, 1] and tiled over −7 … 9."""
+    _backend_ok(backend)
+    tex = np.random.default_rng(n).random((n, n, 3))
+    for lo, hi in ((0.0, 1.0), (-7.0, 9.0)):
+        uvs = np.array([[lo, lo], [hi, lo], [hi, hi], [lo, hi]])
+        img, uv = _quad_samples(backend, tex, uvs, filt, "repeat", dtype)
+        ref = sample_numpy(tex, uv, filt, "repeat")
+        if filt == "nearest":  # leave out pixels within float rounding of a texel boundary
+            x, y = uv[..., 0] * tex.shape[1], (1 - uv[..., 1]) * tex.shape[0]
+            ok = np.minimum(np.abs(x - np.round(x)), np.abs(y - np.round(y))) > 1e-3
+        else:
+            ok = np.ones(uv.shape[:2], bool)
+        # float32: uv interpolated and reduced in float32 moves a sample by ~1e-6 texel at |uv| <= 9
+        tol = 1e-4 if dtype == np.float32 else 1e-10
+        np.testing.assert_allclose(img[ok], ref[ok], atol=tol)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("wrap", ["repeat", "clamp"])
+def test_huge_uvs_sample_exactly(backend, wrap):
+    """uvs far beyond one period (3e37 in float32: u·Wt overflowed, torch raised IndexError and Dr.Jit
+    returned inf; 1e17 in float64: the backends disagreed by 0.08). The samplers reduce uv to one
+    period first (gendr.textures.one_period): finite, and equal to the reference's samples."""
+    _backend_ok(backend)
+    tex = np.random.default_rng(5).random((5, 7, 3))
+    for dtype, big in ((np.float32, 3e37), (np.float64, 1e17)):
+        uvs = np.array([[big, big], [big, big], [big, big], [big, big]]) * np.array([1.0, -1.0])
+        img, _ = _quad_samples(backend, tex, uvs, "bilinear", wrap, dtype, size=8)
+        uv0 = uvs[0].astype(dtype).astype(np.float64)
+        np.testing.assert_allclose(img, np.broadcast_to(sample_numpy(tex, uv0, "bilinear", wrap), img.shape), atol=1e-6)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_input_errors_of_the_values_as_given(backend):
+    """float64 values that overflow a float32 render, ragged lists and uint64 indices beyond int64:
+    typed errors naming the value (Dr.Jit rendered the overflow as inf; ragged lists raised NumPy's
+    ValueError; uint64 2^63 + 5 was reported as −9223372036854775803)."""
+    _backend_ok(backend)
+    m = scenes.textured_cube()
+    v32 = m.vertices.astype(np.float32)
+    r = gendr.Renderer(image_size=8, backend=backend, blend="hard")
+    kw = dict(texture=m.texture, uvs=m.uvs, uv_faces=m.uv_faces)
+    for name, value in (("texture", m.texture * 1e300), ("uvs", m.uvs * 1e300)):
+        with pytest.raises(gendr.InputValueError, match=rf"{name} must be finite in float32 .*= inf"):
+            r.render(v32, m.faces, CAM, **(kw | {name: value}))
+    with pytest.raises(gendr.InputValueError, match=r"face_colors must be finite in float32 .*\[0, 0\] = inf"):
+        r.render(v32, m.faces, CAM, face_colors=np.full((12, 3), 1e300))
+    ragged = {"uvs": [[0.0, 0.0]] * 23 + [[0.0]], "uv_faces": m.uv_faces.tolist()[:-1] + [[0, 1]],
+              "texture": [[[0.5, 0.5, 0.5]], [[0.5, 0.5]]]}
+    for name, value in ragged.items():
+        with pytest.raises(gendr.ShapeError, match=f"{name} must be a regular array"):
+            r.render(m.vertices, m.faces, CAM, **(kw | {name: value}))
+    with pytest.raises(gendr.ShapeError, match="vertex_colors must be a regular array"):
+        r.render(m.vertices, m.faces, CAM, vertex_colors=[[1.0, 0.0, 0.0]] * 7 + [[1.0]])
+    uvf = m.uv_faces.astype(np.uint64)
+    uvf[0, 0] = 2 ** 63 + 5
+    with pytest.raises(gendr.InputValueError, match="uv_faces holds index 9223372036854775813, beyond int64"):
+        r.render(m.vertices, m.faces, CAM, **(kw | {"uv_faces": uvf}))
+
+
 def test_textured_mesh_checks():
     m = scenes.textured_cube()
     with pytest.raises(gendr.InputValueError, match="uv_faces must lie in"):

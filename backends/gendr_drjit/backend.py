@@ -16,7 +16,7 @@ import drjit as dr
 
 from gendr.cameras import VEC3
 from gendr.errors import BackendUnavailableError, DTypeError, ParameterError, ShapeError
-from gendr.renderer import check_colour_dtype
+from gendr.renderer import check_colour_dtype, check_int64, host_array
 
 from . import raster
 from .ops import DrJitOps
@@ -260,7 +260,7 @@ class DrJitBackend:
                 raise DTypeError(f"{name}: Dr.Jit inputs must be tensors (e.g. drjit.llvm.ad.TensorXf), "
                                  f"got {type(x).__name__}")
             return Input("drjit", x, _drjit_numpy(x).astype(np.float64), like.dtype if like is not None else dt)
-        a = np.asarray(x)
+        a = host_array(x, name)
         if not (a.dtype in (np.float32, np.float64) or (like is not None and a.dtype.kind in "iu")):
             raise DTypeError(f"{name} must be float32 or float64, got dtype {a.dtype}")
         return Input("numpy", a, a.astype(np.float64), like.dtype if like is not None else a.dtype.name)
@@ -275,18 +275,20 @@ class DrJitBackend:
             vt = dr.type_v(x)
             if vt not in (dr.VarType.Int32, dr.VarType.UInt32, dr.VarType.Int64, dr.VarType.UInt64):
                 raise DTypeError(f"{name} must be an integer array, got {vt}")
-            return np.asarray(x.numpy()).astype(np.int64)
-        a = np.array(x)
+            return check_int64(np.asarray(x.numpy()), name).astype(np.int64)
+        a = host_array(x, name)
         if a.dtype.kind not in "iu":
             raise DTypeError(f"{name} must be an integer array, got {a.dtype}")
-        return a.astype(np.int64)
+        return check_int64(a, name).astype(np.int64)
 
     def first_nonfinite(self, t):
-        bad = ~np.isfinite(t.np)
+        with np.errstate(over="ignore"):  # the values as rendered: 1e300 is inf in float32
+            a = t.np.astype(np.float32) if t.dtype == "float32" else t.np
+        bad = ~np.isfinite(a)
         if not bad.any():
             return None
         idx = tuple(int(i) for i in np.argwhere(bad)[0])
-        return idx, float(t.np[idx])
+        return idx, float(a[idx])
 
     def index_range(self, t):
         return int(t.min()), int(t.max())

@@ -766,9 +766,16 @@ def _texel(fc, T, f, u, v, filt, wrap):
     Float, UInt32 = T.Float, T.UInt32
     base = (f // fc.F) * (Ht * Wt) if Bt > 1 else UInt32(0)
 
-    def wrapi(i, n):  # integer-valued floats -> UInt32 in [0, n)
-        i = i - n * dr.floor(i / n) if wrap == "repeat" else dr.clip(i, 0.0, float(n - 1))
-        return UInt32(i)
+    repeat = wrap == "repeat"
+    # one period first (gendr.textures.one_period): texel indices then lie in [−1, n], exactly. (Not
+    # i − n·floor(i/n): Dr.Jit divides by a constant n as a product with its rounded reciprocal, so
+    # 47/47 < 1 in float32 and i = n read and wrote out of bounds.)
+    u, v = (u - dr.floor(dr.detach(u)), v - dr.floor(dr.detach(v))) if repeat else (dr.clip(u, -1.0, 2.0),
+                                                                                     dr.clip(v, -1.0, 2.0))
+
+    def wrapi(i, n):  # integer-valued floats in [−1, n] -> UInt32 in [0, n)
+        i = dr.select(i < 0.0, i + n, dr.select(i >= n, i - n, i)) if repeat else dr.clip(i, 0.0, float(n - 1))
+        return dr.minimum(UInt32(i), n - 1)  # (NaN uvs: still no out-of-bounds gather or scatter)
 
     def at(r, c):
         idx = (base + r * Wt + c) * C

@@ -5,7 +5,7 @@ import numpy as np
 import torch
 
 from gendr.errors import BackendUnavailableError, DTypeError, ParameterError
-from gendr.renderer import check_colour_dtype
+from gendr.renderer import check_colour_dtype, check_int64, host_array
 
 from . import raster
 from .ops import torch_ops
@@ -57,7 +57,7 @@ class TorchBackend:
             if like is not None:
                 check_colour_dtype(t.dtype, name)
         else:
-            a = np.asarray(x)
+            a = host_array(x, name)
             # colours (cast to the vertices' dtype) may be given as integers; geometry may not
             if not (a.dtype in (np.float32, np.float64) or (like is not None and a.dtype.kind in "iu")):
                 raise DTypeError(f"{name} must be float32 or float64, got dtype {a.dtype}")
@@ -72,12 +72,14 @@ class TorchBackend:
 
     def index_array(self, x, name):
         if not isinstance(x, torch.Tensor):
-            a = np.array(x)
+            a = host_array(x, name)
             if a.dtype.kind not in "iu":  # (None, strings: torch.as_tensor's TypeError; floats, bools)
                 raise DTypeError(f"{name} must be an integer array, got {a.dtype}")
-            return torch.as_tensor(a, device=self.device).long()
+            return torch.as_tensor(check_int64(a, name).astype(np.int64), device=self.device)
         if x.dtype.is_floating_point or x.dtype == torch.bool or x.dtype.is_complex:
             raise DTypeError(f"{name} must be an integer array, got {x.dtype}")
+        if x.dtype == torch.uint64:
+            check_int64(x.cpu().numpy(), name)
         return x.long()
 
     def first_nonfinite(self, t):

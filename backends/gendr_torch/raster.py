@@ -886,9 +886,11 @@ def _texel(settings, fc, sh, b, face):
     flat = tex[..., :3].reshape(-1, 3)
     base = (face // fc.F) * (Ht * Wt) if Bt > 1 else torch.zeros_like(face)
     repeat = settings.texture_wrap == "repeat"
+    # one period first (gendr.textures.one_period): texel indices then lie in [−1, n], exactly
+    u, v = (u - torch.floor(u.detach()), v - torch.floor(v.detach())) if repeat else (u.clamp(-1, 2), v.clamp(-1, 2))
 
-    def wrap(i, n):  # float integer-valued indices -> int64 in [0, n)
-        i = i - n * torch.floor(i / n) if repeat else torch.clamp(i, 0, n - 1)
+    def wrap(i, n):  # integer-valued floats in [−1, n] -> int64 in [0, n)
+        i = torch.where(i < 0, i + n, torch.where(i >= n, i - n, i)) if repeat else torch.clamp(i, 0, n - 1)
         return i.long()
 
     def at(r, c):
