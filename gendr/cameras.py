@@ -75,7 +75,7 @@ def _plain(value) -> bool:
     if isinstance(value, (list, tuple)):
         return len(value) > 0 and all(_plain(v) for v in value)
     try:
-        return np.asarray(value).dtype.kind in "biuf"
+        return np.asarray(value).dtype.kind in "iuf"
     except (TypeError, ValueError):
         return False
 
@@ -96,6 +96,8 @@ def batched(name: str, value, kind: str) -> np.ndarray:
         a = a[None] if a.ndim == 0 else a
         if a.ndim != 1:
             raise ShapeError(f"camera parameter {name} must be a scalar or have shape [B], got {list(a.shape)}")
+    if a.shape[0] == 0:  # (as a tensor's is at render time)
+        raise ShapeError(f"camera parameter {name} has an empty batch: shape {list(a.shape)}")
     return a
 
 
@@ -182,6 +184,9 @@ class Camera:
             if _mixes_tensors(value):
                 raise ParameterError(f"{name} parameter {k}={value!r} mixes numbers and tensors: give one tensor "
                                      f"(e.g. torch.stack), which keeps its gradient")
+            dtype = str(getattr(value, "dtype", "")).rsplit(".", 1)[-1] if is_backend_array(value) else ""
+            if dtype == "bool" or dtype.startswith("complex"):  # (a cast would make True 1°, drop imaginary parts)
+                raise ParameterError(f"{name} parameter {k} must be a real tensor, got dtype {value.dtype}")
             if not (_plain(value) or is_backend_array(value)):
                 raise ParameterError(f"{name} parameter {k}={value!r} must be a number, a sequence of numbers, "
                                      f"a float NumPy array or a torch/Dr.Jit tensor")

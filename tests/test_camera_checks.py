@@ -145,3 +145,22 @@ def test_the_old_failures_are_typed_now():
                  lambda: P(eye=torch.zeros(3, dtype=torch.float64))):
         with pytest.raises(ValueError):
             gendr.Renderer(image_size=(8, 10)).render(V, F, make())
+
+
+def test_bool_complex_and_empty_camera_values():
+    """True was accepted as fov_y = 1° (plain and as a tensor, both backends); a complex tensor lost
+    its imaginary part; an empty NumPy batch passed construction (a tensor's failed at render time)."""
+    for value in (True, [True, False], np.array([True])):
+        with pytest.raises(ParameterError, match="fov_y=.* must be a number"):
+            P(fov_y=value)
+    for value in (torch.tensor(True), torch.tensor([True, False, True]), torch.tensor(40.0 + 0j)):
+        with pytest.raises(ParameterError, match="must be a real tensor, got dtype torch.(bool|complex64)"):
+            P(fov_y=value) if value.ndim == 0 else P(eye=value)
+    with pytest.raises(gendr.ShapeError, match=r"fov_y has an empty batch: shape \[0\]"):
+        P(fov_y=np.empty(0))
+    with pytest.raises(gendr.ShapeError, match=r"eye has an empty batch: shape \[0, 3\]"):
+        P(eye=np.zeros((0, 3)))
+    if "drjit" in gendr.available_backends():
+        from drjit.llvm.ad import Bool
+        with pytest.raises(ParameterError, match="camera parameter fov_y must be a real array, got a Dr.Jit Bool"):
+            gendr.Renderer(image_size=(8, 10), backend="drjit").render(V.numpy(), F.numpy(), P(fov_y=Bool(True)))

@@ -445,6 +445,8 @@ class DrJitBackend:
 
     def _param(self, v, T, name):
         """(flat AD array, shape) of a camera parameter / τ of any supported kind."""
+        if _is_drjit(v) and dr.type_v(v) == dr.VarType.Bool:  # (torch tensors: gendr.cameras)
+            raise ParameterError(f"{name} must be a real array, got a Dr.Jit {type(v).__name__}")
         if _is_drjit(v):
             _check_device(v, T, name)
             if dr.is_tensor_v(v):
