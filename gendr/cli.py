@@ -183,13 +183,31 @@ def _render_specs(args):
     return dist, tcn, f"{dist.label()}|{tcn.label()}"
 
 
+def writable_dir(output, option: str = "-o", given=None) -> Path:
+    """An output folder, checked before any work (a file in its path, or a folder we may not write
+    into, failed only when the results were written): it exists as a writable directory, or its
+    nearest existing ancestor is one (the folders are made later, when there is something to write).
+    ``given``: the path the user named, for the message (default ``output``)."""
+    path, given = Path(output), str(output if given is None else given)
+    probe = path
+    while not probe.exists() and probe.parent != probe:
+        probe = probe.parent
+    if not probe.is_dir():
+        raise ParameterError(f"{option} {given!r}: {str(probe)!r} exists and is not a directory")
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise ParameterError(f"{option} {given!r}: the directory {str(probe)!r} is not writable")
+    return path
+
+
 def _png_output(output: str) -> Path:
-    """The -o path of a PNG to write, checked before any work: a .png name, not a directory."""
+    """The -o path of a PNG to write, checked before any work: a .png name, not a directory, in a
+    folder that can be made and written."""
     path = Path(output)
     if path.is_dir():
         raise ParameterError(f"-o {output!r} is a directory; name the PNG file to write (e.g. {output}/render.png)")
     if path.suffix.lower() != ".png":
         raise ParameterError(f"-o {output!r}: gendr render writes PNG files; give a name ending in .png")
+    writable_dir(path.parent, given=output)
     return path
 
 
@@ -243,6 +261,7 @@ def cmd_demo(args) -> int:
     from .images import contact_sheet, require_pillow, write_png
     from .scenes import SCENES, get_scene
     require_pillow("gendr demo")
+    writable_dir(args.output)
     distribution, tconorm, Renderer = _api("distribution"), _api("tconorm"), _api("Renderer")
     scenes = list(SCENES) if not args.scenes else [s.strip() for s in args.scenes.split(",") if s.strip()]
     meshes = [get_scene(s) for s in scenes]  # validates names before any rendering

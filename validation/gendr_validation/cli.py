@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from gendr.cli import writable_dir
+
 
 def _csv(v):
     return [s.strip() for s in v.split(",") if s.strip()] if v else None
@@ -61,6 +63,7 @@ def validate_main(argv=None) -> int:
     if args is None:
         return code
     report = _import("report", "validate")
+    writable_dir(args.output)
     quick = not args.full
     instances = args.instances or ("quick" if quick else "all")
     if instances not in ("quick", "all"):
@@ -89,6 +92,7 @@ def gallery_main(argv=None) -> int:
     if args is None:
         return code
     gallery = _import("gallery", "gallery")
+    writable_dir(args.output)
     files = gallery.generate(args.output, size=args.size)
     total = sum(f[1] for f in files)
     print(f"wrote {len(files)} figures ({total / 1e6:.2f} MB) to {args.output}")
