@@ -5,9 +5,11 @@
     .venv/bin/python benchmarks/ab_raster.py /tmp/raster_base.py --threads 1 --n 6 --dist cauchy --size 64 --batch 4
     .venv/bin/python benchmarks/ab_raster.py /tmp/raster_base.py --threads 1 --shape --n 8
 
-The other module replaces ``gendr_torch.backend.raster`` on alternate calls. Reports the largest
-image and gradient differences, then median wall and CPU time per call (CPU time of this process:
-less disturbed by other processes when running on one thread). Scene: the benchmark's
+The other module replaces ``gendr_torch.backend.raster`` on alternate calls (``--shape``: on
+alternate steps of one optimisation; its first step, a warm-up, is not timed). Reports the largest
+image and gradient differences, then wall and CPU time per call (CPU time of this process: less
+disturbed by other processes when running on one thread), median, min, max and stdev; ``--out
+FILE``: the same as JSON, with the machine and versions. Scene: the benchmark's
 (``icosphere(3)`` from distance 3, logistic + probabilistic, τ = 0.01, eps = 1e-4, blend=None), loss
 (alpha · fixed randn).sum(); ``--batch N``: N cameras around it. ``--shape``: time per step of
 ``run_shape(subdivisions=3, image_size=64, views=24)`` (24 views, soft IoU, Adam).
@@ -16,10 +18,11 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import json
 import math
-import statistics
 import sys
 import time
+from pathlib import Path
 
 import torch
 
@@ -27,6 +30,7 @@ import gendr
 import gendr_torch.backend as backend
 import gendr_torch.raster as current
 from gendr.scenes import icosphere
+from bench_render import machine, summary  # (benchmarks/ is the script's directory: first on sys.path)
 
 
 def load(path, name="gendr_torch._raster_other"):
@@ -71,39 +75,53 @@ def main():
     ap.add_argument("--batch", type=int, default=1)
     ap.add_argument("--fwd", action="store_true", help="forward only")
     ap.add_argument("--shape", action="store_true", help="time shape-optimisation steps instead")
+    ap.add_argument("--out", type=Path, help="write the results here as JSON too")
     a = ap.parse_args()
     torch.set_num_threads(a.threads)
     mods = {"other": load(a.other), "this": current}
-    wall, cpu = {k: [] for k in mods}, {k: [] for k in mods}
+    wall, cpu, diffs = {k: [] for k in mods}, {k: [] for k in mods}, {}
     if a.shape:
         from gendr_experiments.shape import run_shape
-        for k, m in mods.items():
-            backend.raster = m
-            stamps = []
-            run_shape(subdivisions=3, image_size=64, views=24, steps=a.n, distribution=a.dist,
-                      callback=lambda *_: stamps.append((time.perf_counter(), time.process_time())))
-            wall[k] = [1000 * (b[0] - p[0]) for p, b in zip(stamps, stamps[1:])]
-            cpu[k] = [1000 * (b[1] - p[1]) for p, b in zip(stamps, stamps[1:])]
+        order, last = ["other", "this"], {}
+
+        def step_done(*_):  # the step that just ended ran with order[0]; the next runs with the other
+            now = (time.perf_counter(), time.process_time())
+            if last:
+                wall[order[0]].append(now[0] - last["t"][0])
+                cpu[order[0]].append(now[1] - last["t"][1])
+            last["t"] = now
+            order.reverse()
+            backend.raster = mods[order[0]]
+        backend.raster = mods[order[0]]
+        run_shape(subdivisions=3, image_size=64, views=24, steps=2 * a.n + 1, distribution=a.dist, callback=step_done)
     else:
         call = scene_call(a)
         out = {}
         for k, m in mods.items():
             backend.raster = m
             out[k] = call()
-        print("image max diff", float((out["other"][0] - out["this"][0]).detach().abs().max()))
+        diffs["image_max_diff"] = float((out["other"][0] - out["this"][0]).detach().abs().max())
+        print("image max diff", diffs["image_max_diff"])
         if not a.fwd:
             go, gt = out["other"][1], out["this"][1]
-            print("gradient max diff", float((go - gt).abs().max()), "relative", float((go - gt).abs().max() / go.abs().max()))
+            diffs["gradient_max_diff"] = float((go - gt).abs().max())
+            diffs["gradient_max_diff_relative"] = float((go - gt).abs().max() / go.abs().max())
+            print("gradient max diff", diffs["gradient_max_diff"], "relative", diffs["gradient_max_diff_relative"])
         for i in range(a.n):
             for k in (mods if i % 2 else reversed(list(mods))):
                 backend.raster = mods[k]
                 c, t = time.process_time(), time.perf_counter()
                 call()
-                wall[k].append(1000 * (time.perf_counter() - t))
-                cpu[k].append(1000 * (time.process_time() - c))
-    for k in mods:
-        print(f"{k}: wall median {statistics.median(wall[k]):.1f} ms (min {min(wall[k]):.1f}), "
-              f"CPU median {statistics.median(cpu[k]):.1f} ms (min {min(cpu[k]):.1f})")
+                wall[k].append(time.perf_counter() - t)
+                cpu[k].append(time.process_time() - c)
+    times = {k: {"wall": summary(wall[k]), "cpu": summary(cpu[k])} for k in mods}
+    for k, t in times.items():
+        print(f"{k}: wall median {t['wall']['median_ms']:.1f} ms (min {t['wall']['min_ms']:.1f}), "
+              f"CPU median {t['cpu']['median_ms']:.1f} ms (min {t['cpu']['min_ms']:.1f})")
+    if a.out:
+        with open(a.out, "w") as f:
+            json.dump({"machine": machine(), "args": {k: str(v) for k, v in vars(a).items()}, **diffs,
+                       "times": times}, f, indent=2)
 
 
 if __name__ == "__main__":

@@ -1,6 +1,7 @@
 """Interleaved A/B timing of two versions of gendr on a machine whose speed drifts.
 
-Prints one line: which version ran (the path of the imported ``gendr_drjit``) and median times.
+Prints one JSON line: which version ran (``gendr_drjit``: the path of the imported package), the
+machine and versions, and per timing its median, min, max and stdev (``bench_render.summary``).
 Run it alternately against an older checkout (a git worktree put first on ``PYTHONPATH``) and the
 current one, in one sitting:
 
@@ -13,10 +14,11 @@ current one, in one sitting:
 ``render SIZE SUBDIVISIONS REPEATS``: the Dr.Jit render of bench_render.py (icosphere, logistic +
 probabilistic, τ = 0.01, eps = 1e-4, alpha only, 2 threads): medians of forward and forward+backward.
 ``shape STEPS``: the paper's shape step (24 views at 64², 1,280-face template, drjit) through
-``gendr_experiments.shape.run_shape``: median wall time of a step after two warm-up steps.
+``gendr_experiments.shape.run_shape``: wall time per step after two warm-up steps (STEPS >= 3).
 """
 from __future__ import annotations
 
+import json
 import sys
 import time
 
@@ -25,7 +27,7 @@ import drjit as dr
 
 import gendr
 import gendr_drjit
-from bench_render import measure  # (benchmarks/ is the script's directory: first on sys.path)
+from bench_render import machine, measure, summary  # (benchmarks/ is the script's directory: first on sys.path)
 
 
 def render_case(size, subdivisions, repeats):
@@ -48,11 +50,7 @@ def render_case(size, subdivisions, repeats):
         dr.eval(dr.grad(v))
         dr.sync_thread()
 
-    return {name: _median_ms(fn, repeats) for name, fn in (("fwd_ms", fwd), ("fwd_bwd_ms", fwd_bwd))}
-
-
-def _median_ms(fn, repeats):
-    return round(1000.0 * float(np.median(measure(fn, repeats))), 2)
+    return {name: summary(measure(fn, repeats)) for name, fn in (("fwd", fwd), ("fwd_bwd", fwd_bwd))}
 
 
 def shape_case(steps):
@@ -63,7 +61,8 @@ def shape_case(steps):
     run_shape(dict(target="airplane", subdivisions=3, image_size=64, views=24, distance=2.732, fov_y=30.0,
                    lr=10 ** -1.5, steps=steps, backend="drjit", tau=0.01),
               callback=lambda *a: stamps.append(time.perf_counter()))
-    return {"step_ms": round(1000.0 * float(np.median(np.diff(stamps[2:]))), 1)}
+    # stamps[k]: the end of step k; steps 0 and 1 warm up, so step k >= 2 took stamps[k] − stamps[k − 1]
+    return {"step": summary(list(np.diff(stamps[1:])))}
 
 
 def main(argv):
@@ -76,9 +75,12 @@ def main(argv):
     s = sub.add_parser("shape", help="the paper's shape step")
     s.add_argument("steps", type=int)
     a = ap.parse_args(argv)
+    if a.case == "shape" and a.steps < 3:
+        ap.error(f"shape needs STEPS >= 3 (two warm-up steps, then the timed ones), got {a.steps}")
     dr.set_thread_count(2)
     out = render_case(a.size, a.subdivisions, a.repeats) if a.case == "render" else shape_case(a.steps)
-    print(gendr_drjit.__file__, out)
+    print(json.dumps({"gendr_drjit": gendr_drjit.__file__, "case": a.case, "args": vars(a), "machine": machine(),
+                      "threads": 2, "results": out}))
 
 
 if __name__ == "__main__":

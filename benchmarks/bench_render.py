@@ -15,7 +15,9 @@ in a fresh process with an empty Dr.Jit kernel cache: tracing + LLVM compilation
 statistics from Dr.Jit's kernel history (kernels launched, kernels compiled = cache misses, summed
 kernel execution time), and ``optimization_loop``: 100 forward+backward steps on changing vertices
 (a training loop; wall times and kernels compiled), then 5 renders with different τ
-(``kernels_compiled_tau_changes``: τ is opaque, so none may compile a kernel); ``time_split``: the
+(``kernels_compiled_tau_changes``: τ is opaque, so none may compile a kernel; the τ stay on one
+side of the face-major switch, a culling radius of 16 px at 256², which changes the backward layout
+and so compiles, and records, once by design); ``time_split``: the
 median wall time of each mode split into kernel execution and host time (tracing, launches); and
 ``frozen``: forward, forward+backward, time split and optimisation loop again with
 ``freeze=True`` (renders replayed by ``dr.freeze``; the loop reports how many recordings, i.e.
@@ -130,8 +132,14 @@ def machine():
                                 cwd=Path(__file__).parent).stdout.strip()
     except OSError:
         commit = ""
+    versions = {}
+    for lib in ("torch", "drjit"):  # whichever is installed, whether or not this run used it
+        try:
+            versions[lib] = __import__(lib).__version__
+        except ImportError:
+            pass
     return {"cpu": cpu, "cores": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version(),
-            "numpy": np.__version__, "gendr": gendr.__version__, "git_commit": commit}
+            "numpy": np.__version__, "gendr": gendr.__version__, "git_commit": commit, "versions": versions}
 
 
 def _drjit_tensor(device):
@@ -245,7 +253,7 @@ def optimization_loop(modes, steps=100):
     rec0 = frozen.n_recordings if frozen is not None else None
     steps_stats = kernel_stats(loop)
     rec1 = frozen.n_recordings if frozen is not None else None
-    tau_stats = kernel_stats(lambda: [fb(modes["_renderer"](t)) for t in (0.011, 0.012, 0.013, 0.014, 0.015)])
+    tau_stats = kernel_stats(lambda: [fb(modes["_renderer"](t)) for t in (0.009, 0.0095, 0.0105, 0.011, 0.012)])
     out = summary(times) | {"steps": steps, "total_s": sum(times), "kernels_compiled": steps_stats["kernels_compiled"],
                             "kernels_compiled_tau_changes": tau_stats["kernels_compiled"]}
     if frozen is not None:  # recordings (Python traces) made during the 100 steps, and the 5 τ changes

@@ -51,17 +51,24 @@ def test_bench_render_torch_and_drjit_render_the_same_scene(tmp_path):
 
 def test_ab_render_prints_the_version_it_ran():
     pytest.importorskip("drjit")
-    line = _run("ab_render.py", "render", 32, 1, 2).strip().splitlines()[-1]
-    assert "gendr_drjit" in line and "fwd_bwd_ms" in line
+    row = json.loads(_run("ab_render.py", "render", 32, 1, 2).strip().splitlines()[-1])
+    assert row["gendr_drjit"].endswith("gendr_drjit/__init__.py") and "drjit" in row["machine"]["versions"]
+    for k in ("fwd", "fwd_bwd"):
+        t = row["results"][k]
+        assert 0 < t["min_ms"] <= t["median_ms"] <= t["max_ms"] and t["repeats"] == 2
 
 
 def test_ab_raster_against_a_copy_of_itself(tmp_path):
     other = tmp_path / "raster_copy.py"
     other.write_text((BENCH.parent / "backends" / "gendr_torch" / "raster.py").read_text())
-    out = _run("ab_raster.py", other, "--n", 1, "--size", 32)
+    out = _run("ab_raster.py", other, "--n", 1, "--size", 32, "--out", tmp_path / "ab.json")
     assert "other: wall median" in out and "this: wall median" in out
     # the same module on both sides: the same image and gradients
     assert "image max diff 0.0\n" in out and "gradient max diff 0.0 " in out
+    data = json.loads((tmp_path / "ab.json").read_text())
+    assert data["image_max_diff"] == 0.0 and data["gradient_max_diff"] == 0.0 and "torch" in data["machine"]["versions"]
+    for k in ("other", "this"):
+        assert data["times"][k]["wall"]["repeats"] == 1 and data["times"][k]["cpu"]["median_ms"] > 0
 
 
 @pytest.mark.slow
@@ -72,4 +79,7 @@ def test_cutoff_effect(tmp_path):
     assert data["repeats"] == 1 and len(data["rows"]) >= 2
     for row in data["rows"]:
         assert row["cutoff"] == 100.0 and 0 <= row["mean_abs_alpha_change"] <= row["max_abs_alpha_change"] <= 1
-        assert row["fwd_bwd_ms_exact"] > 0 and row["fwd_bwd_ms_cutoff"] > 0
+        for k in ("fwd_bwd_exact", "fwd_bwd_cutoff"):
+            t = row[k]
+            assert 0 < t["min_ms"] <= t["median_ms"] <= t["max_ms"] and t["repeats"] == 1
+    assert "torch" in data["machine"]["versions"]
