@@ -83,3 +83,26 @@ def test_cutoff_effect(tmp_path):
             t = row[k]
             assert 0 < t["min_ms"] <= t["median_ms"] <= t["max_ms"] and t["repeats"] == 1
     assert "torch" in data["machine"]["versions"]
+
+
+def test_readme_figures_are_the_committed_json():
+    """The README's performance table quotes benchmarks/results/*.json (committed, with the commit
+    that made them), rounded as shown: a re-run that changes the JSON must change the README."""
+    res = BENCH / "results"
+    readme = (BENCH.parent / "README.md").read_text()
+
+    def first(name):
+        return json.loads((res / name).read_text())["results"][0]
+    rows = {"torch": first("render_torch.json"), "compiled": first("render_torch_compiled.json"),
+            "drjit": first("render_drjit.json")}
+    large = first("render_drjit_large.json")
+    commits = {json.loads(p.read_text())["machine"]["git_commit"] for p in res.glob("render_*.json")}
+    assert len(commits) == 1 and f"measured at {commits.pop()}" in readme
+    for key, r in rows.items():
+        f, fb = r["forward"]["median_ms"], r["forward_backward"]["median_ms"]
+        assert f"| {f:.1f} ms | {fb:.1f} ms" in readme, key
+        d = 1 if key == "drjit" else 0  # (a few MB: one decimal)
+        assert f"| {r['forward']['peak_extra_mb']:.{d}f} / {r['forward_backward']['peak_extra_mb']:.{d}f} MB" in readme, key
+    assert f"(frozen: {rows['drjit']['frozen']['forward_backward']['median_ms']:.1f} ms)" in readme
+    assert (f"drjit {large['forward']['median_ms'] / 1000:.2f} s forward, "
+            f"{large['forward_backward']['median_ms'] / 1000:.2f} s forward+backward") in readme
