@@ -17,9 +17,33 @@ def adapter():
 @pytest.mark.parametrize("index", [0, 271, 164, 676, 177])
 def test_gradients_match_finite_differences(adapter, index):
     inst = gendr.paper_grid()[index]
-    res, _ = gc.check_instance(adapter, inst, params=("vertices_unlit", "camera", "tau"))
+    res, _ = gc.check_instance(adapter, inst, params=("vertices_unlit", "camera", "vertex_colors", "tau"))
     bad = [(r.param, r.pixel_mean, r.pixel_max, r.loss_err) for r in res if not r.passed]
     assert not bad, bad
+    assert {r.param for r in res} == {"vertices_unlit", "camera", "vertex_colors", "tau"}
+
+
+class _DropsPart(gc.TorchAdapter):
+    """An adapter whose AD misses part of a parameter: the field of view of the camera direction
+    (its AD sees azimuth, elevation and distance only), or 0.1 % of the colours' gradient."""
+
+    def loss_grad(self, inst, mesh, cam_params, tau, H, W, weights, param, direction, shading=None):
+        if param == "camera":
+            direction = [*direction[:3], 0.0]
+        g = super().loss_grad(inst, mesh, cam_params, tau, H, W, weights, param, direction, shading)
+        return g * 1.001 if param == "vertex_colors" else g
+
+    def per_pixel(self, inst, mesh, cam_params, tau, H, W, param, direction, index, shading=None):
+        if param == "camera":
+            direction = [*direction[:3], 0.0]
+        g = super().per_pixel(inst, mesh, cam_params, tau, H, W, param, direction, index, shading)
+        return g * 1.001 if param == "vertex_colors" else g
+
+
+def test_the_fov_and_colour_checks_can_fail():
+    """The camera direction includes fov_y, and colours are checked: an AD that misses either fails."""
+    res, _ = gc.check_instance(_DropsPart(), gendr.paper_grid()[271], params=("camera", "vertex_colors"))
+    assert [(r.param, r.passed) for r in res] == [("camera", False), ("vertex_colors", False)]
 
 
 @pytest.mark.parametrize("backend", sorted(set(gc.ADAPTERS) - {"torch"}))
@@ -27,7 +51,8 @@ def test_other_backends_gradients(backend):
     from gendr_validation.hardlimit import usable_backends
     if not usable_backends([backend]):
         pytest.skip(f"backend {backend} unavailable")
-    res, _ = gc.check_instance(gc.ADAPTERS[backend](), gendr.paper_grid()[271], params=("vertices_unlit", "camera", "tau"))
+    res, _ = gc.check_instance(gc.ADAPTERS[backend](), gendr.paper_grid()[271],
+                               params=("vertices_unlit", "camera", "vertex_colors", "tau"))
     bad = [(r.param, r.pixel_mean, r.pixel_max, r.loss_err) for r in res if not r.passed]
     assert not bad, bad
 

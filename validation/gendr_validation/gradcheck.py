@@ -1,7 +1,7 @@
 """Gradient check: reverse-mode derivatives vs central finite differences, in float64 (DESIGN.md §6).
 
-For an instance of ``gendr.paper_grid()`` and a parameter family θ (vertex positions, camera pose,
-τ), a random unit direction u gives a one-parameter image f(t) = render(θ + t·u). We compare
+For an instance of ``gendr.paper_grid()`` and a parameter family θ (vertex positions, camera pose and
+field of view, per-vertex colours, τ), a random unit direction u gives a one-parameter image f(t) = render(θ + t·u). We compare
 
 * per pixel (all 4 channels): the AD directional derivative J·u with the Richardson-extrapolated
   central difference (4·D(h/2) − D(h))/3, D(k) = (f(t + k/2) − f(t − k/2)) / k (fourth order);
@@ -43,10 +43,15 @@ TAU_SQUARED = TAU ** 2
 # from central differences with steps h and h/2 (:func:`richardson`). Camera: at 1e-5 degrees the loss
 # FD is round-off bound (#649 exponential+rev|probabilistic). τ: at 1e-7 small losses were round-off
 # bound (#1207 levy+rev|dombi(0.5): loss error 7.7e-5 at h = 1e-7, 6e-8 at 1e-4).
-STEPS = {"vertices": 1e-6, "vertices_unlit": 1e-6, "camera": 1e-4, "tau": 1e-5, "p": 1e-5, "shape": 1e-5}
+STEPS = {"vertices": 1e-6, "vertices_unlit": 1e-6, "camera": 1e-4, "vertex_colors": 1e-4, "tau": 1e-5, "p": 1e-5,
+         "shape": 1e-5}
 FLOOR = 1e-3
 THRESHOLDS = {"pixel_mean": 1e-4, "pixel_max": 1e-2, "loss": 1e-5}
-PARAMS = ("vertices", "vertices_unlit", "camera", "tau", "p", "shape")
+#: "camera": the orbit's azimuth, elevation, distance and fov_y along one direction; "vertex_colors":
+#: per-vertex albedo (the image is linear in it: this checks the path of colour gradients to the
+#: vertices' colours through the blend and the barycentrics)
+PARAMS = ("vertices", "vertices_unlit", "camera", "vertex_colors", "tau", "p", "shape")
+CAMERA_KEYS = ("azimuth", "elevation", "distance", "fov_y")
 #: the checked parameters of the specs: name -> where it lives
 SPEC_PARAMS = {"p": "tconorm", "shape": "distribution"}
 #: shading per checked parameter: "vertices_unlit" moves vertices with ambient=1, diffuse=0 (no
@@ -85,34 +90,37 @@ class TorchAdapter:
         return gendr.Renderer(dist, tcn, tau=tau, image_size=(H, W), backend=self.name,
                               eps=0.0, blend="softmax", gamma=0.05, max_pairs=1 << 20, **(shading or {}))
 
-    def render(self, inst, mesh, cam_params, tau, H, W, verts=None, shading=None, spec=None):
+    def render(self, inst, mesh, cam_params, tau, H, W, verts=None, shading=None, spec=None, colors=None):
         """Image [H, W, 4] as NumPy float64 (no gradients); ``spec``: (name, value) of a spec
-        parameter (:data:`SPEC_PARAMS`) to set (None: the instance's)."""
+        parameter (:data:`SPEC_PARAMS`) to set (None: the instance's); ``colors``: per-vertex albedo."""
         torch = self.torch
         r = self._renderer(inst, tau, H, W, shading, spec)
         v = mesh.vertices if verts is None else verts
-        img = r.render(torch.as_tensor(v, dtype=torch.float64), mesh.faces, _camera(cam_params))
+        img = r.render(torch.as_tensor(v, dtype=torch.float64), mesh.faces, _camera(cam_params),
+                       vertex_colors=None if colors is None else torch.as_tensor(colors, dtype=torch.float64))
         return img.detach().numpy()[0]
 
     def per_pixel(self, inst, mesh, cam_params, tau, H, W, param, direction, index, shading=None):
-        """d image.flat[index] / dt along ``direction`` for param vertices|camera (one backward pass)."""
+        """d image.flat[index] / dt along ``direction`` for param vertices|camera|vertex_colors (one
+        backward pass)."""
         torch = self.torch
         n = len(index)
         t = torch.zeros(n, dtype=torch.float64, requires_grad=True)
         v0 = torch.as_tensor(mesh.vertices, dtype=torch.float64)
         r = self._renderer(inst, tau, H, W, shading)
+        colors = None
         if param.startswith("vertices"):
             u = torch.as_tensor(direction, dtype=torch.float64)
             verts = v0[None] + t[:, None, None] * u[None]
             cam = _camera(cam_params)
+        elif param == "vertex_colors":
+            u = torch.as_tensor(direction, dtype=torch.float64)
+            colors = torch.as_tensor(base_colors(mesh))[None] + t[:, None, None] * u[None]
+            verts, cam = v0[None].expand(n, -1, -1), _camera(cam_params)
         else:
-            u = direction
             verts = v0
-            az = cam_params["azimuth"] + t * u[0]
-            el = cam_params["elevation"] + t * u[1]
-            dist = cam_params["distance"] + t * u[2]
-            cam = gendr.orbit_camera(az, el, dist, fov_y=cam_params["fov_y"])
-        img = r.render(verts, mesh.faces, cam)  # [n, H, W, 4]: copy b -> output index[b]
+            cam = _camera({k: cam_params[k] + t * direction[i] for i, k in enumerate(CAMERA_KEYS)})
+        img = r.render(verts, mesh.faces, cam, vertex_colors=colors)  # [n, H, W, 4]: copy b -> output index[b]
         sel = img.reshape(n, -1)[torch.arange(n), torch.as_tensor(np.asarray(index), dtype=torch.long)]
         sel.sum().backward()
         return t.grad.numpy().copy()
@@ -121,21 +129,23 @@ class TorchAdapter:
         """∇L · direction for L = Σ weights ⊙ image."""
         torch = self.torch
         v = torch.tensor(mesh.vertices, dtype=torch.float64, requires_grad=param.startswith("vertices"))
-        cp = {k: (torch.tensor(float(val), dtype=torch.float64, requires_grad=(param == "camera"))
-                  if k != "fov_y" else val) for k, val in cam_params.items()}
+        cp = {k: torch.tensor(float(val), dtype=torch.float64, requires_grad=(param == "camera"))
+              for k, val in cam_params.items()}
+        col = torch.tensor(base_colors(mesh), requires_grad=True) if param == "vertex_colors" else None
         tt = torch.tensor(float(tau), dtype=torch.float64, requires_grad=(param == "tau"))
         pp = None
         if param in SPEC_PARAMS:
             pp = torch.tensor(spec_value(inst, param), dtype=torch.float64, requires_grad=True)
         r = self._renderer(inst, tt, H, W, shading, (param, pp) if pp is not None else None)
-        img = r.render(v, mesh.faces, gendr.orbit_camera(cp["azimuth"], cp["elevation"], cp["distance"],
-                                                         fov_y=cp["fov_y"]))
+        img = r.render(v, mesh.faces, _camera(cp), vertex_colors=col)
         L = (img[0] * torch.as_tensor(weights)).sum()
         L.backward()
         if param.startswith("vertices"):
             return float((v.grad.numpy() * direction).sum())
         if param == "camera":
-            return float(sum(cp[k].grad.item() * direction[i] for i, k in enumerate(("azimuth", "elevation", "distance"))))
+            return float(sum(cp[k].grad.item() * direction[i] for i, k in enumerate(CAMERA_KEYS)))
+        if param == "vertex_colors":
+            return float((col.grad.numpy() * direction).sum())
         if param in SPEC_PARAMS:
             return float(pp.grad.item() * direction)
         return float(tt.grad.item() * direction)
@@ -186,6 +196,12 @@ def has_spec_param(inst, name):
 
 def _camera(p):
     return gendr.orbit_camera(p["azimuth"], p["elevation"], p["distance"], fov_y=p["fov_y"])
+
+
+def base_colors(mesh):
+    """Per-vertex albedo of the colour check: smooth, in [0.2, 0.8], different per channel."""
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    return 0.5 + 0.3 * np.sin(3.0 * v + np.array([0.0, 1.0, 2.0]))
 
 
 ADAPTERS = {"torch": lambda: TorchAdapter("torch"), "drjit": lambda: TorchAdapter("drjit")}
@@ -247,12 +263,15 @@ def check_instance(adapter, inst, *, H=H_DEFAULT, W=W_DEFAULT, seed=0, params=PA
             u /= np.abs(u).max()
             at = lambda s: adapter.render(inst, mesh, cam, tau, H, W, verts=mesh.vertices + s * u, shading=shading)
         elif param == "camera":
-            u = rng.standard_normal(3)
+            u = rng.standard_normal(len(CAMERA_KEYS))
             u /= np.abs(u).max()
-            u *= np.array([1.0, 1.0, 0.05])  # degrees, degrees, world units
-            at = lambda s: adapter.render(inst, mesh, {**cam, "azimuth": cam["azimuth"] + s * u[0],
-                                                       "elevation": cam["elevation"] + s * u[1],
-                                                       "distance": cam["distance"] + s * u[2]}, tau, H, W, shading=shading)
+            u *= np.array([1.0, 1.0, 0.05, 1.0])  # degrees, degrees, world units, degrees
+            at = lambda s: adapter.render(inst, mesh, {k: cam[k] + s * u[i] for i, k in enumerate(CAMERA_KEYS)},
+                                          tau, H, W, shading=shading)
+        elif param == "vertex_colors":
+            u = rng.standard_normal(mesh.vertices.shape)
+            u /= np.abs(u).max()
+            at = lambda s: adapter.render(inst, mesh, cam, tau, H, W, shading=shading, colors=base_colors(mesh) + s * u)
         elif param in SPEC_PARAMS:
             u = spec_value(inst, param)  # relative step: d/dt f(θ + t·θ)
             at = lambda s: adapter.render(inst, mesh, cam, tau, H, W, shading=shading, spec=(param, u * (1 + s)))
