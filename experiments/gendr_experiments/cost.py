@@ -449,8 +449,10 @@ class _Const(dict):
         return self.value
 
 
-def best_coarse_tau(rows) -> dict:
-    """instance -> the τ of its best (lowest mean metric) shape row among ``rows`` (paper protocol)."""
+def best_measured_tau(rows) -> dict:
+    """instance -> the τ of its best (lowest mean metric) shape row among ``rows`` (paper protocol,
+    full length), coarse or fine: where a full study's fine stage would centre, as far as the rows
+    tell."""
     from .shape import shape_config
     from .sweep import summarize_best
     steps = shape_config(protocol="paper")["steps"]  # not the short timing runs
@@ -516,7 +518,7 @@ def cost_report(rows, *, studies=STUDIES, hours: float = 24.0, efficiency: float
                 base = full_config("shape", {"protocol": "paper", "instance": inst})
                 table[label + (" sq" if sq else "")] = [shape.predict(dict(base, tau=t)) for t in PAPER_TAUS]
         report["table"] = {"taus": list(PAPER_TAUS), "tconorm": "probabilistic", "seconds": table}
-    measured = best_coarse_tau(rows)
+    measured = best_measured_tau(rows)
     for study in studies:
         m = models.get((study.split("-")[0], "paper"))
         if m is None:
