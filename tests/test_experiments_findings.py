@@ -191,3 +191,25 @@ def test_row_extreme_verdicts_on_small_matrices():
     M3[0, 0, :8], M3[0, 2, :8], M3[0, 3, 8:] = 0.1, 0.4, 0.4
     f = _row_extreme("best", M3, dl, [0], [2, 3], noise=0.03)
     assert f.verdict == "within noise" and "not compared (no shared cells): R2" in f.detail, f
+
+
+def test_noise_control_pairs_only_the_identical_tconorms():
+    """hamacher(0), schweizer_sklar(−1) and dombi(1) are one T-conorm: their runs with every other
+    setting equal are paired (3 names: 3 pairs per cell); another T-conorm, another τ or another
+    distribution row is not; older rows of a key are replaced by the last."""
+    from gendr_experiments.findings import IDENTICAL_TCONORMS, noise_control
+
+    def row(dist, tcn, metric, tau=0.01, key=None):
+        return {"key": key or f"{dist}|{tcn}|{tau}", "label": f"{dist}|{tcn}", "status": "ok", "metric": metric,
+                "config": {"tau": tau, "lr": 0.03, "instance": hash(tcn) % 97, "tconorm": tcn, "distribution": dist}}
+    rows = [row("logistic", t, m) for t, m in zip(IDENTICAL_TCONORMS, (0.30, 0.31, 0.34))]
+    rows += [row("logistic", "probabilistic", 0.9), row("logistic", "dombi(p=2)", 0.9),
+             row("gaussian", "hamacher(p=0)", 0.2), row("logistic", "hamacher(p=0)", 0.5, tau=0.03),
+             row("gaussian", "dombi(p=1)", 0.9, key="old"), row("gaussian", "dombi(p=1)", 0.21, key="old")]
+    c = noise_control(rows)
+    assert c["pairs"] == 4  # logistic: 3 pairs; gaussian: 1 (the last row of key "old")
+    # |Δ|: logistic 0.01, 0.04, 0.03; gaussian 0.01
+    np.testing.assert_allclose(c["max"], 0.04)
+    np.testing.assert_allclose(c["p90"], 0.037)
+    np.testing.assert_allclose(c["median"], 0.02)
+    assert noise_control([row("logistic", "probabilistic", 0.3)]) is None

@@ -507,7 +507,7 @@ def cmd_verify(a) -> int:
 
 
 def cmd_findings(a) -> int:
-    from .findings import findings_markdown, pose_similarity, shape_findings
+    from .findings import IDENTICAL_TCONORMS, findings_markdown, noise_control, pose_similarity, shape_findings
     if not a.noise >= 0:
         raise UsageError(f"--noise must be >= 0, got {a.noise}")
     shape, pose = _results(a.results, "shape"), _results(a.pose, "pose")
@@ -520,6 +520,12 @@ def cmd_findings(a) -> int:
         found.append(pose_similarity(shape, pose))
     print(f"{len(shape)} shape rows" + (f", {len(pose)} pose rows" if pose else "") + "\n")
     print(findings_markdown(found))
+    control = noise_control(shape)
+    if control:
+        print(f"Noise control: {' ≡ '.join(IDENTICAL_TCONORMS)} are one T-conorm; over {control['pairs']} pairs "
+              f"of their runs with every other setting equal, |Δ metric| median {control['median']:.4f}, "
+              f"90th percentile {control['p90']:.4f}, max {control['max']:.4f} (the margins above assume "
+              f"{a.noise:g} per run)")
     return 0
 
 

@@ -19,7 +19,7 @@ import numpy as np
 from .figures import column_labels, grid_labels, score_matrix
 from .sweep import summarize_best
 
-__all__ = ["BLOCKS", "Finding", "shape_findings", "pose_similarity", "findings_markdown"]
+__all__ = ["BLOCKS", "Finding", "shape_findings", "pose_similarity", "noise_control", "findings_markdown"]
 
 #: the paper's blocks of distributions (rows of its heatmaps), by grid row label
 BLOCKS = {
@@ -241,6 +241,33 @@ def pose_similarity(shape_rows, pose_rows) -> Finding:
                             _average_ranks([p[i]["score"] for i in common]))[0, 1])
     verdict = "reproduced" if rho > 0.5 else "contradicted" if rho < 0.2 else "partly"
     return Finding(claim, verdict, f"Spearman rank correlation {rho:.2f} over {len(common)} instances")
+
+
+#: one T-conorm under three names in the grid (docs/grid.md): the Hamacher sum, generator x/(1 − x)
+IDENTICAL_TCONORMS = ("hamacher(p=0)", "schweizer_sklar(p=-1)", "dombi(p=1)")
+
+
+def noise_control(rows) -> dict | None:
+    """The single-run noise measured inside the grid: runs that differ only in which name of
+    :data:`IDENTICAL_TCONORMS` they use compute the same function, so their metrics differ by
+    floating-point rounding amplified by the optimisation alone. Pairs every such run with its
+    twins (same distribution row and every other setting); returns ``{"pairs", "median", "p90",
+    "max"}`` of |Δ metric|, or None without pairs."""
+    import json
+    last = {}
+    for r in rows:
+        if r.get("status") == "ok" and r.get("metric") is not None and "|" in (r.get("label") or ""):
+            last[r.get("key", id(r))] = r
+    groups = {}
+    for r in last.values():
+        dist, tcn = r["label"].split("|", 1)
+        if tcn in IDENTICAL_TCONORMS:
+            rest = {k: v for k, v in r["config"].items() if k not in ("instance", "tconorm", "distribution")}
+            groups.setdefault((dist, json.dumps(rest, sort_keys=True)), []).append(float(r["metric"]))
+    d = [abs(a - b) for ms in groups.values() for i, a in enumerate(ms) for b in ms[i + 1:]]
+    if not d:
+        return None
+    return {"pairs": len(d), "median": float(np.median(d)), "p90": float(np.percentile(d, 90)), "max": float(max(d))}
 
 
 def findings_markdown(findings) -> str:
