@@ -211,5 +211,6 @@ def test_noise_control_pairs_only_the_identical_tconorms():
     # |Δ|: logistic 0.01, 0.04, 0.03; gaussian 0.01
     np.testing.assert_allclose(c["max"], 0.04)
     np.testing.assert_allclose(c["p90"], 0.037)
+    assert c["over"] == 0.25  # 0.04 > 0.03
     np.testing.assert_allclose(c["median"], 0.02)
     assert noise_control([row("logistic", "probabilistic", 0.3)]) is None

@@ -520,12 +520,12 @@ def cmd_findings(a) -> int:
         found.append(pose_similarity(shape, pose))
     print(f"{len(shape)} shape rows" + (f", {len(pose)} pose rows" if pose else "") + "\n")
     print(findings_markdown(found))
-    control = noise_control(shape)
+    control = noise_control(shape, a.noise)
     if control:
         print(f"Noise control: {' ≡ '.join(IDENTICAL_TCONORMS)} are one T-conorm; over {control['pairs']} pairs "
               f"of their runs with every other setting equal, |Δ metric| median {control['median']:.4f}, "
-              f"90th percentile {control['p90']:.4f}, max {control['max']:.4f} (the margins above assume "
-              f"{a.noise:g} per run)")
+              f"90th percentile {control['p90']:.4f}, 95th {control['p95']:.4f}, max {control['max']:.4f}; "
+              f"{100 * control['over']:.1f} % beyond the {a.noise:g} per run the margins above assume")
     return 0
 
 

@@ -247,12 +247,13 @@ def pose_similarity(shape_rows, pose_rows) -> Finding:
 IDENTICAL_TCONORMS = ("hamacher(p=0)", "schweizer_sklar(p=-1)", "dombi(p=1)")
 
 
-def noise_control(rows) -> dict | None:
+def noise_control(rows, noise: float = 0.03) -> dict | None:
     """The single-run noise measured inside the grid: runs that differ only in which name of
     :data:`IDENTICAL_TCONORMS` they use compute the same function, so their metrics differ by
     floating-point rounding amplified by the optimisation alone. Pairs every such run with its
     twins (same distribution row and every other setting); returns ``{"pairs", "median", "p90",
-    "max"}`` of |Δ metric|, or None without pairs."""
+    "p95", "max", "over"}`` of |Δ metric| (``over``: the fraction of pairs beyond ``noise``), or None
+    without pairs."""
     import json
     last = {}
     for r in rows:
@@ -267,7 +268,8 @@ def noise_control(rows) -> dict | None:
     d = [abs(a - b) for ms in groups.values() for i, a in enumerate(ms) for b in ms[i + 1:]]
     if not d:
         return None
-    return {"pairs": len(d), "median": float(np.median(d)), "p90": float(np.percentile(d, 90)), "max": float(max(d))}
+    return {"pairs": len(d), "median": float(np.median(d)), "p90": float(np.percentile(d, 90)),
+            "p95": float(np.percentile(d, 95)), "max": float(max(d)), "over": float(np.mean(np.array(d) > noise))}
 
 
 def findings_markdown(findings) -> str:
