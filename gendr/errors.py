@@ -105,7 +105,6 @@ class BackendUnavailableError(GendrError, ImportError):
     """
 
 
-
 def require_finite(backend, a, name):
     """Raise :class:`InputValueError` naming the first non-finite entry of the backend array ``a``
     as it will be rendered, i.e. after the cast to the render dtype (1e300 is inf in float32)."""

@@ -157,19 +157,18 @@ def check_colour_dtype(dtype, name: str) -> None:
         raise DTypeError(f"{name} must be float32, float64 or integers, got {dtype}")
 
 
-def host_array(x, name: str, *, integer: bool = False) -> np.ndarray:
+def host_array(x, name: str) -> np.ndarray:
     """``x`` (a list, NumPy array, anything ``np.asarray`` reads) as a NumPy array for a backend's
-    input checks: a ragged nesting is a ShapeError, and (``integer``) uint64 indices beyond int64,
-    which ``astype(np.int64)`` would wrap negative, an InputValueError naming the index."""
+    input checks; a ragged nesting is a ShapeError (NumPy raises a bare ValueError)."""
     try:
-        a = np.asarray(x)
-    except ValueError as exc:  # NumPy on ragged nesting
+        return np.asarray(x)
+    except ValueError as exc:
         raise ShapeError(f"{name} must be a regular array (equal-length rows), got a ragged nesting: {exc}") from None
-    return check_int64(a, name) if integer else a
 
 
 def check_int64(a: np.ndarray, name: str) -> np.ndarray:
-    """``a`` unchanged; InputValueError where a uint64 array holds an index beyond int64."""
+    """``a`` unchanged; InputValueError where a uint64 array holds an index beyond int64, which
+    ``astype(np.int64)`` would wrap negative."""
     if a.dtype == np.uint64 and a.size and int(a.max()) > np.iinfo(np.int64).max:
         raise InputValueError(f"{name} holds index {int(a.max())}, beyond int64 (indices must lie in [0, count − 1])")
     return a
