@@ -344,8 +344,9 @@ def _param_text(params) -> str:
 
 
 def _first_sentence(doc: str, limit: int = 110) -> str:
-    doc = " ".join((doc or "").replace("``", "").split())
-    text = re.split(r"\.\s+(?=[A-Z])", doc)[0].rstrip(".") if doc else ""
+    doc = (doc or "").split(">>>")[0]  # (not the examples)
+    doc = " ".join(doc.replace("``", "").split())
+    text = re.split(r"\.\s+(?=[A-Z0-9])", doc)[0].rstrip(".") if doc else ""
     return text if len(text) <= limit else text[:limit - 3].rstrip() + "..."
 
 

@@ -85,6 +85,8 @@ def write_png(path, image) -> Path:
     pil = require_pillow(f"writing {os.fspath(path)!r}").fromarray(a[..., 0] if a.shape[2] == 1 else a)  # mode L, LA, RGB, RGBA
     path = Path(os.fspath(path))
     directory = path.parent if str(path.parent) else Path(".")
+    if not directory.is_dir():  # (else mkstemp's error names the hidden temporary file)
+        raise FileNotFoundError(f"cannot write {str(path)!r}: the folder {str(directory)!r} does not exist")
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
     try:
         with os.fdopen(fd, "wb") as fh:
@@ -180,6 +182,8 @@ def contact_sheet(images, columns: int | None = None, pad: int = 2, background=(
         bg = np.append(bg, 1.0)
     elif bg.shape != (4,):
         raise ShapeError(f"contact_sheet background must be a gray level, RGB or RGBA, got shape {bg.shape}")
+    if not np.all(np.isfinite(bg)):
+        raise InputValueError(f"contact_sheet background must be finite, got {background!r}")
     columns = int(columns)
     rows = math.ceil(n / columns)
     ch = max(c.shape[0] for c in cells)

@@ -17,10 +17,10 @@ Conventions (docs/conventions.md, "Interop"):
 from __future__ import annotations
 
 import math
-import numbers
 
 from .cameras import Camera, IntrinsicsCamera, PerspectiveCamera
 from .errors import DTypeError, ParameterError, ShapeError
+from .renderer import image_size_pair
 
 
 def _torch():
@@ -87,7 +87,7 @@ def project_points(camera: Camera, points, image_size):
     torch = _torch()
     from gendr_torch.ops import torch_ops as ops
     from gendr_torch.raster import camera_tensors
-    H, W = _size(image_size)
+    H, W = image_size_pair(image_size, "project_points")
     if not isinstance(points, torch.Tensor) or not points.is_floating_point():
         raise DTypeError(f"project_points: points must be a float torch tensor, got "
                          f"{type(points).__name__}{'' if not hasattr(points, 'dtype') else ' of ' + str(points.dtype)}")
@@ -105,19 +105,6 @@ def project_points(camera: Camera, points, image_size):
     else:
         nx, ny = sx * xv / -zv + ox, sy * yv / -zv + oy
     return torch.stack(torch.broadcast_tensors((nx + 1.0) * (W / 2.0), (1.0 - ny) * (H / 2.0)), -1)
-
-
-def _size(image_size):
-    try:
-        if isinstance(image_size, numbers.Integral) and not isinstance(image_size, bool):
-            H = W = int(image_size)
-        else:
-            H, W = (int(v) for v in image_size)
-    except (TypeError, ValueError):
-        raise ParameterError(f"image_size={image_size!r} must be (H, W) or an int") from None
-    if H < 1 or W < 1:
-        raise ParameterError(f"image_size={image_size!r} must be positive")
-    return H, W
 
 
 _CV = (1.0, -1.0, -1.0)  # OpenGL camera frame -> OpenCV camera frame (and back): diag(1, −1, −1)
@@ -145,7 +132,7 @@ def to_kornia(camera: Camera, image_size, *, dtype=None, device=None):
     """
     torch = _torch()
     from kornia.geometry.camera import PinholeCamera
-    H, W = _size(image_size)
+    H, W = image_size_pair(image_size, "to_kornia")
     dtype = dtype or torch.float64
     R, t = world_to_view(camera, dtype, device)
     fx, fy, cx, cy = _intrinsics(camera, H, W, dtype, R.device)
@@ -223,7 +210,7 @@ def from_pytorch3d_look_at(dist=1.0, elev=0.0, azim=0.0, *, fov=60.0, degrees=Tr
     to_deg = (lambda v: v) if degrees else (lambda v: v * (180.0 / math.pi))
     fov_d = to_deg(fov)
     if image_size is not None:
-        H, W = _size(image_size)
+        H, W = image_size_pair(image_size, "from_pytorch3d_look_at")
         if H > W:
             ratio = H / W
             if isinstance(fov_d, (int, float)):

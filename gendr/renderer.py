@@ -174,6 +174,18 @@ def check_int64(a: np.ndarray, name: str) -> np.ndarray:
     return a
 
 
+def image_size_pair(image_size, owner: str) -> tuple[int, int]:
+    """(H, W) of an ``image_size`` given as an int or a pair of ints (>= 1); ParameterError naming
+    the value otherwise (strings, floats, bools)."""
+    if isinstance(image_size, numbers.Integral) and not isinstance(image_size, bool):
+        image_size = (image_size, image_size)
+    try:
+        H, W = image_size
+    except (TypeError, ValueError):
+        raise ParameterError(f"{owner} parameter image_size={image_size!r} must be (H, W) or an int") from None
+    return tuple(_number(owner, n, v, positive=True, integer=True) for n, v in (("image height", H), ("image width", W)))
+
+
 def _check_params_fit(settings, dtype: str, tau_value: float) -> None:
     """ParameterError for τ or a distribution or T-conorm parameter (a number) that a float32 render
     cannot hold: beyond float32's range or below its smallest normal number in magnitude (frank
@@ -364,13 +376,7 @@ class Renderer:
         dist = make_distribution(distribution)
         tcn = make_tconorm(tconorm)
         tau = _check_tau(tau)
-        if isinstance(image_size, numbers.Integral) and not isinstance(image_size, bool):
-            image_size = (image_size, image_size)
-        try:
-            H, W = image_size
-        except (TypeError, ValueError):
-            raise ParameterError(f"Renderer parameter image_size={image_size!r} must be (H, W) or an int") from None
-        H, W = (_number("Renderer", n, v, positive=True, integer=True) for n, v in (("image height", H), ("image width", W)))
+        H, W = image_size_pair(image_size, "Renderer")
         eps = _number("Renderer", "eps", eps, nonneg=True)
         if eps >= 1:
             raise ParameterError(f"Renderer parameter eps={eps!r} is out of domain: expected 0 <= eps < 1")

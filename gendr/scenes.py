@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import inspect
 import math
+import numbers
 import os
 from dataclasses import dataclass
 from typing import Callable
@@ -27,7 +28,7 @@ from .errors import BackendUnavailableError, InputValueError, ParameterError, Sh
 
 __all__ = ["Mesh", "icosphere", "cube", "torus", "thin_shape", "airplane", "chair", "teapot_like",
            "tetrahedron", "open_mesh", "degenerate_mesh", "SCENES", "get_scene", "load_mesh",
-           "normalize", "concatenate", "TexturedMesh", "textured_cube", "checker_texture", "TEXTURED_SCENES",
+           "normalize", "concatenate", "merge_vertices", "TexturedMesh", "textured_cube", "checker_texture", "TEXTURED_SCENES",
            "get_textured_scene", "load_textured_mesh"]
 
 
@@ -63,20 +64,21 @@ class Mesh:
             v = np.ascontiguousarray(np.asarray(self.vertices, dtype=np.float64))
         except (TypeError, ValueError) as e:  # ragged lists, strings
             raise InputValueError(f"mesh vertices must be numbers of shape [V, 3]: {e}") from None
-        f = np.asarray(self.faces)
+        try:
+            f = np.asarray(self.faces)
+        except ValueError as e:  # ragged lists
+            raise ShapeError(f"mesh faces must have shape [F, 3]: {e}") from None
         if f.size == 0:
             f = f.reshape(-1, 3)
         if v.ndim != 2 or v.shape[1] != 3:
             raise ShapeError(f"mesh vertices must have shape [V, 3], got {tuple(v.shape)}")
         if f.ndim != 2 or f.shape[1] != 3:
             raise ShapeError(f"mesh faces must have shape [F, 3], got {tuple(f.shape)}")
-        if f.size and not np.issubdtype(f.dtype, np.integer):
-            if not np.all(np.equal(np.mod(f, 1), 0)):
-                raise InputValueError("mesh face indices must be integers")
+        if f.size and (f.dtype.kind not in "iuf" or not np.all(np.isfinite(f)) or not np.all(np.mod(f, 1) == 0)):
+            raise InputValueError(f"mesh face indices must be integers, got dtype {f.dtype}")
+        if f.size and (f.min() < 0 or f.max() >= len(v)):  # (before the cast: 1e20 or a uint64 would wrap)
+            raise InputValueError(f"mesh face indices must lie in [0, {len(v)}), got range [{f.min():.15g}, {f.max():.15g}]")
         f = np.ascontiguousarray(f.astype(np.int64))
-        if f.size and (f.min() < 0 or f.max() >= len(v)):
-            raise InputValueError(f"mesh face indices must lie in [0, {len(v)}), got range "
-                                  f"[{int(f.min())}, {int(f.max())}]")
         object.__setattr__(self, "vertices", v)
         object.__setattr__(self, "faces", f)
 
@@ -153,18 +155,19 @@ def normalize(mesh: Mesh, radius: float = 1.0) -> Mesh:
     >>> scenes.normalize(scenes.cube(2.0)).bounding_radius
     1.0
     """
-    if not (isinstance(radius, (int, float)) and math.isfinite(radius) and radius > 0):
+    if isinstance(radius, bool) or not (isinstance(radius, numbers.Real) and math.isfinite(radius) and radius > 0):
         raise InputValueError(f"normalize radius must be a finite number > 0, got {radius!r}")
     v = mesh.vertices
     if len(v) == 0:
         return mesh
     if not np.all(np.isfinite(v)):
         raise InputValueError("cannot normalize a mesh with non-finite vertices")
-    centre = 0.5 * (v.min(axis=0) + v.max(axis=0))
+    centre = 0.5 * v.min(axis=0) + 0.5 * v.max(axis=0)  # (halves first: no overflow near 1.8e308)
     v = v - centre
-    r = float(np.linalg.norm(v, axis=1).max())
-    if r > 0:
-        v = v * (radius / r)
+    m = float(np.abs(v).max())
+    if m > 0:  # the farthest vertex's distance as m·|v/m| (|v| itself overflows for coordinates ~1e200)
+        u = v / m
+        v = u * (float(radius) / float(np.linalg.norm(u, axis=1).max()))
     return Mesh(v, mesh.faces)
 
 
@@ -501,17 +504,34 @@ def _trimesh_load(path):
         import trimesh
     except ImportError as e:  # pragma: no cover - trimesh is a dev dependency
         raise BackendUnavailableError(f"reading mesh file {p!r} needs trimesh (pip install trimesh): {e}") from None
+    if p.lower().endswith(".obj"):
+        _check_obj_indices(p)
     try:
         return p, trimesh.load(p, force="mesh", process=False)
     except Exception as e:  # trimesh raises many kinds
         raise InputValueError(f"cannot read mesh file {p!r}: {type(e).__name__}: {e}") from None
 
 
+def _check_obj_indices(path):
+    """OBJ indices start at 1 (negative: relative); trimesh reads a 0 as the last vertex (a wrong,
+    degenerate face) instead of refusing it."""
+    with open(path, errors="replace") as f:
+        for n, line in enumerate(f, 1):
+            toks = line.split()
+            if toks[:1] == ["f"] and any(tok.split("/")[0] == "0" for tok in toks[1:]):
+                raise InputValueError(f"mesh file {path!r} line {n}: {line.strip()!r} has index 0; OBJ indices "
+                                      f"start at 1 (or are negative, counting back from the last vertex)")
+
+
 def load_mesh(path) -> Mesh:
     """Read a triangle mesh file (OBJ, PLY, STL, OFF, GLB/GLTF, ... anything trimesh reads).
 
     Scenes with several geometries are concatenated into one mesh (transforms applied); polygons are
-    triangulated; vertices are kept as stored (no merging). Raises
+    triangulated. Vertices are trimesh's, not the file's ``v`` lines: one per distinct (position,
+    normal, uv) of the face corners, unused ones dropped, groups possibly reordered; a file that gives
+    each face its own normals (``f a//n``) comes back as a triangle soup, one vertex per corner
+    (flat-shaded, its faces unconnected): :func:`merge_vertices` joins vertices at equal positions.
+    Raises
     :class:`~gendr.errors.InputValueError` naming the path when it cannot be read, holds no faces or
     has non-finite vertices, and :class:`~gendr.errors.BackendUnavailableError` without trimesh.
 
@@ -536,6 +556,26 @@ def load_mesh(path) -> Mesh:
         raise InputValueError(f"mesh file {p!r}: {e}") from None
 
 
+def merge_vertices(mesh: Mesh) -> Mesh:
+    """``mesh`` with vertices at identical positions merged into one (first occurrence order kept,
+    faces re-indexed); the mesh itself where all positions differ.
+
+    >>> from gendr.scenes import Mesh, merge_vertices
+    >>> soup = Mesh([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], [[0, 1, 2], [3, 4, 5]])
+    >>> m = merge_vertices(soup)
+    >>> m, m.faces.tolist()
+    (Mesh(V=4, F=2), [[0, 1, 2], [1, 3, 2]])
+    """
+    v = np.asarray(mesh.vertices)
+    _, first, inverse = np.unique(v, axis=0, return_index=True, return_inverse=True)
+    if len(first) == len(v):
+        return mesh
+    order = np.argsort(first)  # unique rows in order of first occurrence
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    return Mesh(v[np.sort(first)], rank[np.asarray(inverse).reshape(-1)][np.asarray(mesh.faces)])
+
+
 # ------------------------------------------------------------------------------------------------
 # textured meshes
 # ------------------------------------------------------------------------------------------------
@@ -547,7 +587,7 @@ class TexturedMesh(Mesh):
         uvs: float64 ``[T, 2]`` texture coordinates (u right, v up; docs/conventions.md, Textures).
         uv_faces: int64 ``[F, 3]`` indices into ``uvs`` per face corner.
         texture: float64 ``[Ht, Wt, C]``, C = 3 or 4, albedo in [0, 1] (a uint8 texture is divided by
-            255), row 0 at the top.
+            255, a uint16 one by 65535), row 0 at the top.
 
     Render with ``Renderer.render(m.vertices, m.faces, cam, texture=m.texture, uvs=m.uvs,
     uv_faces=m.uv_faces)``. Raises ShapeError / InputValueError for bad shapes or indices.
@@ -567,8 +607,13 @@ class TexturedMesh(Mesh):
         uv = np.ascontiguousarray(np.asarray(self.uvs, dtype=np.float64))
         uvf = np.asarray(self.uv_faces)
         tex = np.asarray(self.texture)
-        # 8-bit images mean 0..255 (the Renderer refuses uint8 textures; here the meaning is clear)
-        tex = np.ascontiguousarray(tex / 255.0 if tex.dtype == np.uint8 else tex.astype(np.float64))
+        # 8- and 16-bit images mean 0..255 and 0..65535 (the Renderer refuses integer textures; here
+        # the meaning is clear); other integers or bools have none
+        if tex.dtype.kind in "iub" and tex.dtype not in (np.uint8, np.uint16):
+            raise InputValueError(f"mesh texture of dtype {tex.dtype}: give float albedo in [0, 1], or uint8 / uint16 "
+                                  f"image values")
+        scale = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0}.get(tex.dtype, 1.0)
+        tex = np.ascontiguousarray(tex.astype(np.float64) / scale)
         if uv.ndim != 2 or uv.shape[1] != 2 or not np.all(np.isfinite(uv)):
             raise ShapeError(f"mesh uvs must be finite with shape [T, 2], got {tuple(uv.shape)}")
         if uvf.shape != self.faces.shape or (uvf.size and not np.issubdtype(uvf.dtype, np.integer)):
@@ -672,12 +717,29 @@ def get_textured_scene(name: str, **kwargs) -> TexturedMesh:
     return _call_scene(TEXTURED_SCENES[name], "textured scene", name, kwargs)
 
 
+def _obj_has_texture_map(path) -> bool:
+    """Whether an OBJ file names (``mtllib``) an existing material file with a ``map_Kd`` line: where
+    none does, trimesh gives the mesh a default material, a grey 2×2 image, not an error."""
+    folder = os.path.dirname(path)
+    with open(path, errors="replace") as f:
+        libs = [name for line in f if line.startswith("mtllib") for name in line.split()[1:]]
+    for name in libs:
+        mtl = os.path.join(folder, name)
+        if os.path.isfile(mtl):
+            with open(mtl, errors="replace") as f:
+                if any(line.split()[:1] == ["map_Kd"] for line in f):
+                    return True
+    return False
+
+
 def load_textured_mesh(path) -> TexturedMesh:
     """Read a textured mesh (OBJ + MTL + image, or GLB/GLTF) through trimesh: vertices, faces, the
     per-vertex uvs trimesh makes (it splits vertices along uv seams, so ``uv_faces`` = ``faces``) and
     the base-colour image as float albedo [Ht, Wt, 3|4] in [0, 1] (8-bit values / 255, not
     sRGB-decoded). Raises InputValueError naming the path when the file has no uvs or no image."""
     p, loaded = _trimesh_load(path)
+    if p.lower().endswith(".obj") and not _obj_has_texture_map(p):  # (trimesh makes up a grey 2×2 one)
+        raise InputValueError(f"mesh file {p!r} has no texture image: no map_Kd in a material file it names")
     visual = getattr(loaded, "visual", None)
     uv = getattr(visual, "uv", None)
     if uv is None or len(uv) != len(loaded.vertices):

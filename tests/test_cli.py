@@ -363,3 +363,11 @@ def test_render_with_a_device_torch_cannot_use(tmp_path, capsys, device, words):
         pytest.skip("this machine has CUDA: the device is usable")
     code, _, err = _run(capsys, "render", "icosphere", "--size", "8", "--device", device, "-o", str(tmp_path / "a.png"))
     assert code == 2 and words in err and "Traceback" not in err
+
+
+def test_list_scenes_shows_first_sentences_not_doctests(capsys):
+    """(the tetrahedron's line ran into its >>> example, the torus's into its second sentence)"""
+    code, out, _ = _run(capsys, "list", "scenes")
+    assert code == 0 and ">>>" not in out
+    torus = next(line for line in out.splitlines() if line.strip().startswith("torus"))
+    assert torus.rstrip().endswith("tube radius r")

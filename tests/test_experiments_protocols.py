@@ -9,8 +9,8 @@ import torch
 
 import gendr
 from gendr.errors import InputValueError, ParameterError
-from gendr.scenes import Mesh
-from gendr_experiments.common import PAPER_DATA_ENV, _merged, resolve_data_path
+from gendr.scenes import Mesh, merge_vertices
+from gendr_experiments.common import PAPER_DATA_ENV, resolve_data_path
 from gendr_experiments.pose import (POSE_PRESETS, LookAtPoseProblem, lookat_pairs, lookat_rotation, pose_config,
                                     run_pose)
 from gendr_experiments.shape import SHAPE_PRESETS, shape_config, run_shape
@@ -63,7 +63,7 @@ def test_paper_data_loads_from_the_user_directory_as_is(tmp_path, monkeypatch):
     m = load_target_mesh("paper:tri.obj", normalize=False)
     assert m.num_vertices == 4 and np.abs(m.vertices).max() == 2.0  # as is: not scaled
     dup = Mesh(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 0, 0.0], [0, 0, 0]]), np.array([[0, 1, 2], [3, 4, 2]]))
-    mm = _merged(dup)
+    mm = merge_vertices(dup)
     assert mm.num_vertices == 3 and mm.faces.tolist() == [[0, 1, 2], [1, 0, 2]]
 
 

@@ -6,7 +6,7 @@ import sys
 import numpy as np
 import pytest
 
-from gendr.errors import GendrError, InputValueError, ShapeError, UnknownNameError
+from gendr.errors import GendrError, InputValueError, ParameterError, ShapeError, UnknownNameError
 from gendr.scenes import (CLOSED_SCENES, SCENES, Mesh, cube, get_scene, icosphere, load_mesh,
                           normalize, torus)
 
@@ -223,7 +223,6 @@ def test_import_gendr_scenes_does_not_import_torch_or_trimesh():
 
 def test_a_scene_keyword_it_does_not_take_names_the_accepted_ones():
     """(a raw TypeError before)"""
-    from gendr.errors import ParameterError
     with pytest.raises(ParameterError, match="'subdivision'.*subdivisions, radius"):
         get_scene("icosphere", subdivision=2)
 
@@ -237,7 +236,7 @@ def test_load_mesh_needs_a_path(path):
 def test_scene_inputs_raise_typed_errors():
     """(each was a raw TypeError / ValueError, or a silently wrong texture)"""
     from gendr import scenes
-    from gendr.errors import ParameterError
+
     with pytest.raises(ParameterError, match="textured scene 'textured_cube' got unexpected parameter 'foo'"):
         scenes.get_textured_scene("textured_cube", foo=1)
     with pytest.raises(InputValueError, match=r"mesh vertices must be numbers of shape \[V, 3\]"):
@@ -249,3 +248,54 @@ def test_scene_inputs_raise_typed_errors():
     m = scenes.textured_cube()
     as_bytes = scenes.TexturedMesh(m.vertices, m.faces, m.uvs, m.uv_faces, np.round(m.texture * 255).astype(np.uint8))
     np.testing.assert_allclose(as_bytes.texture, m.texture, atol=0.5 / 255)
+
+
+def test_review_fixes_of_mesh_loading(tmp_path):
+    """OBJ index 0 (trimesh read it as the last vertex: a wrong face), a textured OBJ without a
+    texture map (trimesh made up a grey 2×2 image), per-face normals (a triangle soup: merge_vertices)."""
+    from gendr.scenes import load_mesh, load_textured_mesh, merge_vertices
+    (tmp_path / "zero.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n")
+    with pytest.raises(InputValueError, match="line 4: 'f 0 1 2' has index 0; OBJ indices start at 1"):
+        load_mesh(tmp_path / "zero.obj")
+    body = "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nf 1/1 2/2 3/3\n"
+    (tmp_path / "nomtl.obj").write_text(body)
+    (tmp_path / "gone.obj").write_text("mtllib gone.mtl\n" + body)
+    for name in ("nomtl.obj", "gone.obj"):
+        with pytest.raises(InputValueError, match="has no texture image: no map_Kd"):
+            load_textured_mesh(tmp_path / name)
+    (tmp_path / "flat.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nvn 0 0 1\nvn 0 0 -1\n"
+                                       "f 1//1 2//1 3//1\nf 2//2 4//2 3//2\n")
+    soup = load_mesh(tmp_path / "flat.obj")
+    merged = merge_vertices(soup)
+    assert soup.num_vertices == 6 and merged.num_vertices == 4  # trimesh splits by normal; merged back
+    np.testing.assert_array_equal(merged.vertices[merged.faces], soup.vertices[soup.faces])
+
+
+def test_review_fixes_of_mesh_values():
+    from gendr.scenes import TexturedMesh, cube, normalize
+    for faces, words in (([["0", "1", "2"]], "must be integers, got dtype <U1"),
+                         ([[0, 1, None]], "must be integers, got dtype object"),
+                         ([[0, 1, 1e20]], r"must lie in \[0, 3\), got range \[0, 1e\+20\]")):
+        with pytest.raises(InputValueError, match=words):
+            Mesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], faces)
+    assert normalize(cube(), np.float32(2)).bounding_radius == pytest.approx(2.0)
+    big = normalize(Mesh([[-1e200, -1e200, 0], [1e200, -1e200, 0], [-1e200, 1e200, 0]], [[0, 1, 2]]))
+    assert big.bounding_radius == pytest.approx(1.0)  # (was all zeros: the norm overflowed)
+    kw = dict(vertices=[[0, 0, 0], [1, 0, 0], [0, 1, 0]], faces=[[0, 1, 2]], uvs=[[0, 0], [1, 0], [0, 1]],
+              uv_faces=[[0, 1, 2]])
+    assert TexturedMesh(**kw, texture=np.full((2, 2, 3), 65535, np.uint16)).texture.max() == 1.0
+    with pytest.raises(InputValueError, match="texture of dtype int32"):
+        TexturedMesh(**kw, texture=np.ones((2, 2, 3), np.int32))
+
+
+def test_review_fixes_of_images_and_interop(tmp_path):
+    from gendr.images import contact_sheet, write_png
+    from gendr.interop import project_points
+    from gendr import PerspectiveCamera
+    with pytest.raises(InputValueError, match="background must be finite"):
+        contact_sheet([np.zeros((2, 2, 4))], background=float("nan"))
+    with pytest.raises(FileNotFoundError, match=f"cannot write '{tmp_path}/no/x.png': the folder"):
+        write_png(tmp_path / "no" / "x.png", np.zeros((2, 2, 3)))
+    for size in ("88", (8.9, 8.9), True):
+        with pytest.raises(ParameterError, match="project_points parameter image"):
+            project_points(PerspectiveCamera(), np.zeros((1, 3)), size)

@@ -183,22 +183,8 @@ def load_target_mesh(name_or_path: str, normalize: bool = True):
     from gendr import scenes
     if name_or_path in scenes.SCENES:
         return scenes.get_scene(name_or_path)
-    mesh = _merged(scenes.load_mesh(resolve_data_path(name_or_path)))
+    mesh = scenes.merge_vertices(scenes.load_mesh(resolve_data_path(name_or_path)))
     return scenes.normalize(mesh) if normalize else mesh
-
-
-def _merged(mesh):
-    """Vertices at identical positions merged (OBJ files with per-corner normals store a vertex per
-    corner), first occurrence order kept; faces re-indexed."""
-    from gendr.scenes import Mesh
-    v = np.asarray(mesh.vertices)
-    _, first, inverse = np.unique(v, axis=0, return_index=True, return_inverse=True)
-    if len(first) == len(v):
-        return mesh
-    order = np.argsort(first)                      # unique rows in order of first occurrence
-    rank = np.empty_like(order)
-    rank[order] = np.arange(len(order))
-    return Mesh(v[np.sort(first)], rank[np.asarray(inverse).reshape(-1)][np.asarray(mesh.faces)])
 
 
 def data_digests(cfg: dict) -> dict:
