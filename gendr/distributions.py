@@ -137,6 +137,9 @@ class Distribution(LearnableParams):
             if f.sf is not None:
                 return f.sf(ops, -x, **kw)
             if f.log_sf is not None:
+                if ops.needs_grad(x):  # x = −inf (an overflowed d/τ): F = 0 with slope 0, not exp(−inf)·(−inf)
+                    up = x > -math.inf
+                    return ops.where(up, ops.exp(f.log_sf(ops, -ops.where(up, x, 0.0), **kw)), 0.0)
                 return ops.exp(f.log_sf(ops, -x, **kw))
             return 1.0 - f.cdf(ops, -x, **kw)
         return f.cdf(ops, x, **kw)
@@ -646,16 +649,19 @@ def _cauchy_cdf(ops, x):
 
 def _cauchy_log_sf(ops, x):
     # log t on the right (relatively accurate), log1p(−t) on the left (t <= 1/2). Beyond x = 1e4:
-    # log(atan(r)/π) = log r − log π − r²/3 + O(r⁴), finite up to float32's largest x, where
-    # atan(1/x) is subnormal
+    # log(atan(r)/π) = log r − log π − r²/3 + O(r⁴), with log r = −log x where r = 1/x is below
+    # 1e-37 (subnormal in float32, which Dr.Jit flushes to 0: log 0 = −inf at x = 1e38; and x = +inf,
+    # an overflowed d/τ, then has the slope −1/x = 0, not log(0)'s inf·0)
     pos, t, r = _cauchy_tail(ops, x)
     far = x > 1e4
 
-    def right(t, r):
-        return ops.log(ops.where(pos, ops.where(far, r, t), 1.0)) - ops.where(far, math.log(math.pi) + r * r / 3.0, 0.0)
+    def right(t, r, x):
+        flip = far & (r < 1e-37)  # one logarithm per pair still: of t, r or x
+        lg = ops.log(ops.where(pos, ops.where(far, ops.where(flip, x, r), t), 1.0))
+        return ops.where(flip, -lg, lg) - ops.where(far, math.log(math.pi) + r * r / 3.0, 0.0)
     # a branch: the pairs of a SIMD packet mostly lie on one side of the face's edges, so most
     # packets evaluate one logarithm, not both
-    return ops.branch(pos, right, lambda t, r: ops.log1p(-ops.where(pos, 0.0, t)), t, r)
+    return ops.branch(pos, right, lambda t, r, x: ops.log1p(-ops.where(pos, 0.0, t)), t, r, x)
 
 
 def _cauchy_odds(ops, x):

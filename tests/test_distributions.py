@@ -616,3 +616,43 @@ def test_gamma_gradients_at_infinity_are_finite(k, rev):
         # d log(1 − F)/dx tends to −1 (plain: log Q ~ −x) or 0 (reversed): finite, not NaN
         (dl,) = torch.autograd.grad(torch.where(torch.isfinite(log_sf), log_sf, 0.0).sum(), x)
         assert torch.isfinite(dl).all(), dl
+
+
+@pytest.mark.parametrize("backend", ["torch", "drjit"])
+def test_slopes_at_an_overflowed_argument_are_zero(backend):
+    """x = ±inf (d/τ overflowed) is a limit: F and log(1 − F) have slope 0 there. The reversed
+    Gaussian's and Cauchy's F = exp(log_sf(−x)) gave torch exp(−inf)·(−inf) = NaN at −inf (every
+    vertex gradient of a float32 render at τ = 1.2e-38 NaN); Cauchy's log(1 − F) took log(1/x) = log 0
+    at +inf (NaN slope in both backends)."""
+    torch = pytest.importorskip("torch")
+    cases = [("gaussian", True, -math.inf), ("cauchy", True, -math.inf), ("cauchy", False, math.inf),
+             ("logistic", True, -math.inf)]
+    for name, rev, x in cases:
+        d = gendr.distribution(name, reversed=rev)
+        for which in (0, 1):  # F, log(1 − F)
+            if backend == "torch":
+                from gendr_torch.ops import torch_ops
+                xt = torch.tensor([x], dtype=torch.float64, requires_grad=True)
+                (g,) = torch.autograd.grad(d.cdf_and_log_sf(torch_ops, xt)[which].sum(), xt)
+                g = float(g[0])
+            else:
+                dr = pytest.importorskip("drjit")
+                from drjit.llvm.ad import Float64
+                from gendr_drjit.ops import DrJitOps
+                xd = Float64([x])
+                dr.enable_grad(xd)
+                dr.backward(d.cdf_and_log_sf(DrJitOps(Float64), xd)[which], flags=dr.ADFlag.Default | dr.ADFlag.AllowNoGrad)
+                g = float(dr.grad(xd)[0])
+            assert g == 0.0, (d.label(), which, g)
+
+
+def test_cauchy_log_sf_in_float32_up_to_its_largest_x():
+    """Dr.Jit flushes the subnormal 1/x (x > 8.5e37) to 0: log(1 − F) was −inf at 1e38 (true −88.643)."""
+    dr = pytest.importorskip("drjit")
+    from drjit.llvm.ad import Float
+    from gendr_drjit.ops import DrJitOps
+    xs = [1e37, 5e37, 1e38, 3e38]
+    got = np.array(gendr.distribution("cauchy").cdf_and_log_sf(DrJitOps(Float), Float(xs * 8))[1])[:4]
+    want = [-math.log(math.pi * x) for x in xs]  # log(atan(1/x)/π), to float32 rounding
+    np.testing.assert_allclose(got, want, rtol=1e-6)
+    del dr
