@@ -184,9 +184,11 @@ class Camera:
             if _mixes_tensors(value):
                 raise ParameterError(f"{name} parameter {k}={value!r} mixes numbers and tensors: give one tensor "
                                      f"(e.g. torch.stack), which keeps its gradient")
-            dtype = str(getattr(value, "dtype", "")).rsplit(".", 1)[-1] if is_backend_array(value) else ""
-            if dtype == "bool" or dtype.startswith("complex"):  # (a cast would make True 1°, drop imaginary parts)
-                raise ParameterError(f"{name} parameter {k} must be a real tensor, got dtype {value.dtype}")
+            if is_backend_array(value):  # (a cast would make True 1°, or drop imaginary parts)
+                dtype = str(getattr(value, "dtype", "")).rsplit(".", 1)[-1]
+                kind = type(value).__name__  # Dr.Jit arrays have no dtype: Bool, Array3b, TensorXb are bools
+                if dtype == "bool" or dtype.startswith("complex") or (not dtype and (kind == "Bool" or kind.endswith("b"))):
+                    raise ParameterError(f"{name} parameter {k} must be a real tensor, got {dtype or kind}")
             if not (_plain(value) or is_backend_array(value)):
                 raise ParameterError(f"{name} parameter {k}={value!r} must be a number, a sequence of numbers, "
                                      f"a float NumPy array or a torch/Dr.Jit tensor")

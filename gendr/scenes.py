@@ -77,7 +77,8 @@ class Mesh:
         if f.size and (f.dtype.kind not in "iuf" or not np.all(np.isfinite(f)) or not np.all(np.mod(f, 1) == 0)):
             raise InputValueError(f"mesh face indices must be integers, got dtype {f.dtype}")
         if f.size and (f.min() < 0 or f.max() >= len(v)):  # (before the cast: 1e20 or a uint64 would wrap)
-            raise InputValueError(f"mesh face indices must lie in [0, {len(v)}), got range [{f.min():.15g}, {f.max():.15g}]")
+            lo, hi = (int(f.min()), int(f.max())) if f.dtype.kind in "iu" else (f"{f.min():.15g}", f"{f.max():.15g}")
+            raise InputValueError(f"mesh face indices must lie in [0, {len(v)}), got range [{lo}, {hi}]")
         f = np.ascontiguousarray(f.astype(np.int64))
         object.__setattr__(self, "vertices", v)
         object.__setattr__(self, "faces", f)
@@ -721,13 +722,14 @@ def _obj_has_texture_map(path) -> bool:
     """Whether an OBJ file names (``mtllib``) an existing material file with a ``map_Kd`` line: where
     none does, trimesh gives the mesh a default material, a grey 2×2 image, not an error."""
     folder = os.path.dirname(path)
-    with open(path, errors="replace") as f:
-        libs = [name for line in f if line.startswith("mtllib") for name in line.split()[1:]]
-    for name in libs:
+    with open(path, errors="replace") as f:  # a name with spaces (the rest of the line), or several names
+        lines = [line.split(None, 1) for line in f if line.split()[:1] == ["mtllib"]]
+    names = {n for parts in lines if len(parts) == 2 for n in (parts[1].strip(), *parts[1].split())}
+    for name in names:
         mtl = os.path.join(folder, name)
         if os.path.isfile(mtl):
-            with open(mtl, errors="replace") as f:
-                if any(line.split()[:1] == ["map_Kd"] for line in f):
+            with open(mtl, errors="replace") as f:  # (keys are case-insensitive, as trimesh reads them)
+                if any(line.split()[:1] == ["map_kd"] for line in map(str.lower, f)):
                     return True
     return False
 

@@ -154,13 +154,15 @@ def test_bool_complex_and_empty_camera_values():
         with pytest.raises(ParameterError, match="fov_y=.* must be a number"):
             P(fov_y=value)
     for value in (torch.tensor(True), torch.tensor([True, False, True]), torch.tensor(40.0 + 0j)):
-        with pytest.raises(ParameterError, match="must be a real tensor, got dtype torch.(bool|complex64)"):
+        with pytest.raises(ParameterError, match="must be a real tensor, got (bool|complex64)"):
             P(fov_y=value) if value.ndim == 0 else P(eye=value)
     with pytest.raises(gendr.ShapeError, match=r"fov_y has an empty batch: shape \[0\]"):
         P(fov_y=np.empty(0))
     with pytest.raises(gendr.ShapeError, match=r"eye has an empty batch: shape \[0, 3\]"):
         P(eye=np.zeros((0, 3)))
     if "drjit" in gendr.available_backends():
-        from drjit.llvm.ad import Bool
-        with pytest.raises(ParameterError, match="camera parameter fov_y must be a real array, got a Dr.Jit Bool"):
-            gendr.Renderer(image_size=(8, 10), backend="drjit").render(V.numpy(), F.numpy(), P(fov_y=Bool(True)))
+        from drjit.llvm.ad import Array3b, Bool
+        with pytest.raises(ParameterError, match="fov_y must be a real tensor, got Bool"):
+            P(fov_y=Bool(True))  # (the torch backend rendered it as 1°)
+        with pytest.raises(ParameterError, match="eye must be a real tensor, got Array3b"):
+            P(eye=Array3b(True, False, True))

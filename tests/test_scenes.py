@@ -263,6 +263,12 @@ def test_review_fixes_of_mesh_loading(tmp_path):
     for name in ("nomtl.obj", "gone.obj"):
         with pytest.raises(InputValueError, match="has no texture image: no map_Kd"):
             load_textured_mesh(tmp_path / name)
+    # what trimesh reads stays accepted: a lower-case key, a material file name with a space
+    from gendr.images import write_png
+    write_png(tmp_path / "t.png", np.full((4, 4, 3), 0.5))
+    (tmp_path / "my mat.mtl").write_text("newmtl m\nmap_kd t.png\n")
+    (tmp_path / "space.obj").write_text("mtllib my mat.mtl\nusemtl m\n" + body)
+    assert load_textured_mesh(tmp_path / "space.obj").texture.shape == (4, 4, 3)
     (tmp_path / "flat.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nvn 0 0 1\nvn 0 0 -1\n"
                                        "f 1//1 2//1 3//1\nf 2//2 4//2 3//2\n")
     soup = load_mesh(tmp_path / "flat.obj")

@@ -237,8 +237,9 @@ def test_input_errors_of_the_values_as_given(backend):
         r.render(m.vertices, m.faces, CAM, vertex_colors=[[1.0, 0.0, 0.0]] * 7 + [[1.0]])
     uvf = m.uv_faces.astype(np.uint64)
     uvf[0, 0] = 2 ** 63 + 5
-    with pytest.raises(gendr.InputValueError, match="uv_faces holds index 9223372036854775813, beyond int64"):
-        r.render(m.vertices, m.faces, CAM, **(kw | {"uv_faces": uvf}))
+    for given in (uvf, torch.as_tensor(uvf)):  # (the Dr.Jit backend wrapped a torch uint64 tensor)
+        with pytest.raises(gendr.InputValueError, match="uv_faces holds index 9223372036854775813, beyond int64"):
+            r.render(m.vertices, m.faces, CAM, **(kw | {"uv_faces": given}))
 
 
 def test_textured_mesh_checks():

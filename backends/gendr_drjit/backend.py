@@ -270,7 +270,7 @@ class DrJitBackend:
             torch = _torch()
             if x.dtype.is_floating_point or x.dtype == torch.bool or x.dtype.is_complex:
                 raise DTypeError(f"{name} must be an integer array, got {x.dtype}")
-            return x.detach().cpu().numpy().astype(np.int64)
+            return check_int64(x.detach().cpu().numpy(), name).astype(np.int64)
         if _is_drjit(x):
             vt = dr.type_v(x)
             if vt not in (dr.VarType.Int32, dr.VarType.UInt32, dr.VarType.Int64, dr.VarType.UInt64):
