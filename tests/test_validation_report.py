@@ -21,7 +21,8 @@ def test_report_smoke(tmp_path):
     assert js["references"], "no reference renderer (pyrender, Mitsuba 3) is installed: run install.sh"
     assert hl["checks"] == 2 * 2 * len(js["references"])  # cameras x instances x references
     assert hl["differ_unambiguous_total"] == 0 and hl["failed"] == 0
-    assert js["gradients"]["checks"] == 4 and js["gradients"]["instances"] == [271]
+    # 271 logistic|probabilistic: vertices, unlit vertices, camera, vertex colours, τ (no p, no shape)
+    assert js["gradients"]["checks"] == 5 and js["gradients"]["instances"] == [271]
     assert js["passed"] == s["passed"]
     assert torch.get_num_threads() == threads  # run() uses one thread and restores the caller's setting
 
