@@ -183,8 +183,8 @@ def _render_specs(args):
     return dist, tcn, f"{dist.label()}|{tcn.label()}"
 
 
-def writable_dir(output, option: str = "-o", given=None) -> Path:
-    """An output folder, checked before any work (a file in its path, or a folder we may not write
+def writable_dir(output, given=None) -> Path:
+    """An output folder (``-o``), checked before any work (a file in its path, or a folder we may not write
     into, failed only when the results were written): it exists as a writable directory, or its
     nearest existing ancestor is one (the folders are made later, when there is something to write).
     ``given``: the path the user named, for the message (default ``output``)."""
@@ -193,9 +193,9 @@ def writable_dir(output, option: str = "-o", given=None) -> Path:
     while not probe.exists() and probe.parent != probe:
         probe = probe.parent
     if not probe.is_dir():
-        raise ParameterError(f"{option} {given!r}: {str(probe)!r} exists and is not a directory")
+        raise ParameterError(f"-o {given!r}: {str(probe)!r} exists and is not a directory")
     if not os.access(probe, os.W_OK | os.X_OK):
-        raise ParameterError(f"{option} {given!r}: the directory {str(probe)!r} is not writable")
+        raise ParameterError(f"-o {given!r}: the directory {str(probe)!r} is not writable")
     return path
 
 

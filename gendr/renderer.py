@@ -166,12 +166,12 @@ def host_array(x, name: str) -> np.ndarray:
         raise ShapeError(f"{name} must be a regular array (equal-length rows), got a ragged nesting: {exc}") from None
 
 
-def check_int64(a: np.ndarray, name: str) -> np.ndarray:
-    """``a`` unchanged; InputValueError where a uint64 array holds an index beyond int64, which
-    ``astype(np.int64)`` would wrap negative."""
+def int64_indices(a: np.ndarray, name: str) -> np.ndarray:
+    """The integer array ``a`` as int64; InputValueError where a uint64 one holds an index beyond
+    int64, which the cast would wrap negative."""
     if a.dtype == np.uint64 and a.size and int(a.max()) > np.iinfo(np.int64).max:
         raise InputValueError(f"{name} holds index {int(a.max())}, beyond int64 (indices must lie in [0, count − 1])")
-    return a
+    return a.astype(np.int64)
 
 
 def image_size_pair(image_size, owner: str) -> tuple[int, int]:

@@ -16,7 +16,7 @@ import drjit as dr
 
 from gendr.cameras import VEC3
 from gendr.errors import BackendUnavailableError, DTypeError, ParameterError, ShapeError
-from gendr.renderer import check_colour_dtype, check_int64, host_array
+from gendr.renderer import check_colour_dtype, host_array, int64_indices
 
 from . import raster
 from .ops import DrJitOps
@@ -270,16 +270,16 @@ class DrJitBackend:
             torch = _torch()
             if x.dtype.is_floating_point or x.dtype == torch.bool or x.dtype.is_complex:
                 raise DTypeError(f"{name} must be an integer array, got {x.dtype}")
-            return check_int64(x.detach().cpu().numpy(), name).astype(np.int64)
+            return int64_indices(x.detach().cpu().numpy(), name)
         if _is_drjit(x):
             vt = dr.type_v(x)
             if vt not in (dr.VarType.Int32, dr.VarType.UInt32, dr.VarType.Int64, dr.VarType.UInt64):
                 raise DTypeError(f"{name} must be an integer array, got {vt}")
-            return check_int64(np.asarray(x.numpy()), name).astype(np.int64)
+            return int64_indices(np.asarray(x.numpy()), name)
         a = host_array(x, name)
         if a.dtype.kind not in "iu":
             raise DTypeError(f"{name} must be an integer array, got {a.dtype}")
-        return check_int64(a, name).astype(np.int64)
+        return int64_indices(a, name)
 
     def first_nonfinite(self, t):
         with np.errstate(over="ignore"):  # the values as rendered: 1e300 is inf in float32
@@ -445,7 +445,7 @@ class DrJitBackend:
 
     def _param(self, v, T, name):
         """(flat AD array, shape) of a camera parameter / τ of any supported kind."""
-        if _is_drjit(v) and dr.type_v(v) == dr.VarType.Bool:  # (torch tensors: gendr.cameras)
+        if _is_drjit(v) and dr.type_v(v) == dr.VarType.Bool:  # (τ; gendr.cameras refuses bool camera values)
             raise ParameterError(f"{name} must be a real array, got a Dr.Jit {type(v).__name__}")
         if _is_drjit(v):
             _check_device(v, T, name)

@@ -5,7 +5,7 @@ import numpy as np
 import torch
 
 from gendr.errors import BackendUnavailableError, DTypeError, ParameterError
-from gendr.renderer import check_colour_dtype, check_int64, host_array
+from gendr.renderer import check_colour_dtype, host_array, int64_indices
 
 from . import raster
 from .ops import torch_ops
@@ -75,11 +75,11 @@ class TorchBackend:
             a = host_array(x, name)
             if a.dtype.kind not in "iu":  # (None, strings: torch.as_tensor's TypeError; floats, bools)
                 raise DTypeError(f"{name} must be an integer array, got {a.dtype}")
-            return torch.as_tensor(check_int64(a, name).astype(np.int64), device=self.device)
+            return torch.as_tensor(int64_indices(a, name), device=self.device)
         if x.dtype.is_floating_point or x.dtype == torch.bool or x.dtype.is_complex:
             raise DTypeError(f"{name} must be an integer array, got {x.dtype}")
-        if x.dtype == torch.uint64:
-            check_int64(x.cpu().numpy(), name)
+        if x.dtype == torch.uint64:  # (.long() would wrap an index beyond int64 negative)
+            return torch.as_tensor(int64_indices(x.cpu().numpy(), name), device=x.device)
         return x.long()
 
     def first_nonfinite(self, t):
