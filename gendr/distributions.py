@@ -571,8 +571,7 @@ def _logistic_cdf(ops, x):
 
 
 def _logistic_pdf(ops, x):
-    s = ops.sigmoid(x)
-    return s * (1.0 - s)
+    return ops.sigmoid(x) * ops.sigmoid(-x)  # not s·(1 − s): that cancels to 0 from x = 37
 
 
 DISTRIBUTIONS.add(DistributionFamily(
