@@ -22,6 +22,7 @@ import math
 import os
 import re
 import sys
+import tempfile
 import time
 from importlib import metadata
 from pathlib import Path
@@ -194,8 +195,10 @@ def writable_dir(output, given=None) -> Path:
         probe = probe.parent
     if not probe.is_dir():
         raise ParameterError(f"-o {given!r}: {str(probe)!r} exists and is not a directory")
-    if not os.access(probe, os.W_OK | os.X_OK):
-        raise ParameterError(f"-o {given!r}: the directory {str(probe)!r} is not writable")
+    try:  # a real write: os.access says yes to root on read-only mounts and /proc
+        tempfile.TemporaryFile(dir=probe).close()
+    except OSError as e:
+        raise ParameterError(f"-o {given!r}: the directory {str(probe)!r} is not writable ({e.strerror})") from None
     return path
 
 

@@ -356,6 +356,13 @@ def test_an_unwritable_output_folder_fails_before_any_work(tmp_path, capsys, arg
     assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"] and f.read_text() == "keep me"
 
 
+@pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="needs Linux's /proc (a folder nobody can write into)")
+def test_a_folder_nobody_may_write_into_fails_before_any_work(capsys):
+    """os.access says yes to root everywhere: as root, -o /proc/x.png rendered, then exited 1."""
+    code, _, err = _run(capsys, "render", "icosphere", "--size", "8", "-o", "/proc/gendr-test/x.png")
+    assert code == 2 and "the directory '/proc' is not writable" in err, err
+
+
 @pytest.mark.parametrize("device,words", [("gpu", "is not a torch device"), ("cuda", "CUDA")])
 def test_render_with_a_device_torch_cannot_use(tmp_path, capsys, device, words):
     import torch
