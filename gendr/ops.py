@@ -12,6 +12,9 @@ Members every namespace provides (all elementwise, broadcasting like NumPy):
 ``exp log log1p expm1 sqrt sin cos tan atan tanh erf erfc lgamma abs``  the usual functions
 ``softplus(x)``    ``log(1 + exp(x))`` without overflow
 ``sigmoid(x)``     ``1 / (1 + exp(-x))`` without overflow
+``power(x, e)``    ``x**e`` for ``x > 0`` and ``e`` a Python float or a learnable scalar array
+                   (``x = 0`` only for a Python float ``e > 1``: 0, slope 0); where the incoming
+                   gradient is 0 the gradient is 0, also where the slope e·x^(e−1) overflows
 ``where(c, a, b)`` select; ``c`` is a boolean array; ``a``/``b`` arrays or Python floats
 ``branch(c, if_true, if_false, *args)``  ``where(c, if_true(*args), if_false(*args))`` for two
                    callables returning an array or a tuple of arrays (selected entry by entry); a
@@ -92,6 +95,8 @@ class NumpyOps:
     erf = staticmethod(_f64(_erf))
     erfc = staticmethod(_f64(_erfc))
     lgamma = staticmethod(_f64(_lgamma))
+
+    power = staticmethod(np.power)
 
     @staticmethod
     def softplus(x):

@@ -320,14 +320,14 @@ def _pow0(ops, x, e):
     """
     if isinstance(e, Learnable):
         pos = x > 0.0
-        y = ops.where(pos, ops.where(pos, x, 1.0) ** e.array, 0.0)
+        y = ops.where(pos, ops.power(ops.where(pos, x, 1.0), e.array), 0.0)
         return y + ops.where(pos, 0.0, x) if e == 1.0 else y  # (x = 0 there: slope 1 for e = 1)
     if e == 1.0:
         return x
     if e > 1.0:
-        return ops.clamp(x, 0.0, None) ** e
+        return ops.power(ops.clamp(x, 0.0, None), e)
     pos = x > 0.0
-    return ops.where(pos, ops.where(pos, x, 1.0) ** e, 0.0)
+    return ops.where(pos, ops.power(ops.where(pos, x, 1.0), e), 0.0)
 
 
 def _inf_guard(ops, f, args, safe, p=None):

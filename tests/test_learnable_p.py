@@ -242,3 +242,50 @@ def test_validation_suite_checks_p_of_every_family(backend):
     for inst in insts:
         (r,), _ = gc.check_instance(adapter, inst, params=("p",))
         assert r.param == "p" and r.passed, (inst.name, r.pixel_mean, r.pixel_max, r.loss_err)
+
+
+# --- powers at the ends of the float range --------------------------------------------------------
+
+@pytest.mark.parametrize("learnable", [False, True])
+@pytest.mark.parametrize("family", ["yager", "dombi", "aczel_alsina"])
+def test_drjit_powers_near_the_smallest_float64(family, learnable):
+    """Dr.Jit's power (exp2 inside) returns −inf for results in [2^−1024, 2^−1023.5) in float64 (LLVM):
+    one face whose x^p landed there made a pixel's generator sum −inf and its alpha 0 (dombi, p = 3:
+    0.044 → 0). The aggregate of 0.3 with x = 2^(k/p), k = −1030 … −1018, is NumPy's to 1e-14."""
+    dr = pytest.importorskip("drjit")
+    from drjit.llvm.ad import Float64
+    from gendr_drjit.ops import DrJitOps
+    p0 = 3.0 if learnable else 2.5  # a float 3.0 multiplies (exact); learnable or 2.5: exp and log
+    p = Float64(p0)
+    if learnable:
+        dr.enable_grad(p)
+    x = 2.0 ** (np.linspace(-1030.0, -1018.0, 97) / p0)
+    other = np.full_like(x, 0.3)
+    got = gendr.tconorm(family, p=p if learnable else p0).aggregate(DrJitOps(Float64), [Float64(x), Float64(other)])
+    ref = gendr.tconorm(family, p=p0).aggregate(numpy_ops, [x, other])
+    np.testing.assert_allclose(np.array(dr.detach(got)), ref, rtol=1e-14, atol=0)
+
+
+@pytest.mark.parametrize("learnable", [False, True])
+@pytest.mark.parametrize("backend", _backends())
+def test_overflowing_inverse_slope_with_zero_weight_is_not_nan(backend, learnable):
+    """aczel_alsina(p = 30): the inverse s^(1/30) has slope s^(−29/30)/30, +inf at the s ~ 1e-320 of
+    pixels far outside a Gaussian render. torch's pow backward multiplied it by those pixels' zero
+    weight: 0·inf = NaN, in every vertex gradient and in ∂/∂p. The loss reads one interior pixel's
+    alpha; its ∂/∂p, ~1.5e-8 (at p = 30 the aggregate is nearly the max), matches finite differences
+    to 1e-11: their round-off, ~1e-16·|L|/h with h = 3e-4, is ~2e-13."""
+    v, f, cam = _scene()
+
+    def loss(p, grad=False):
+        pt = torch.tensor(float(p), dtype=torch.float64, requires_grad=grad and learnable)
+        vt = torch.tensor(v, dtype=torch.float64, requires_grad=grad)
+        r = gendr.Renderer("gaussian", gendr.tconorm("aczel_alsina", p=pt if learnable else p), tau=0.08,
+                           image_size=(12, 16), backend=backend, eps=0.0, blend=None)
+        return r.render(vt, f, cam)[0, 5, 8, 3], vt, pt
+
+    L, vt, pt = loss(30.0, grad=True)
+    L.backward()
+    assert torch.isfinite(vt.grad).all() and float(vt.grad.abs().max()) > 0
+    if learnable:
+        fd = richardson(lambda s: float(loss(30.0 + s)[0]), _step(30.0))[0]
+        assert np.isfinite(float(pt.grad)) and abs(float(pt.grad) - fd) <= 1e-11, (float(pt.grad), fd)

@@ -58,6 +58,13 @@ class DrJitOps:
     def _f(self, x):
         return x if isinstance(x, self.Float) else self.Float(x)
 
+    def power(self, x, e):
+        if not isinstance(e, dr.ArrayBase) and float(e).is_integer():
+            return x ** e  # Dr.Jit multiplies: exact
+        # not dr.power: its exp2 returns −inf for results in [2^−1024, 2^−1023.5) (float64, LLVM)
+        pos = x > 0.0
+        return dr.select(pos, dr.exp(e * dr.log(dr.select(pos, x, 1.0))), 0.0)
+
     def minimum(self, a, b):
         return dr.minimum(a, b)
 

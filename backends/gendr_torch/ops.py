@@ -25,6 +25,26 @@ class _WithDerivative(torch.autograd.Function):
             return grad * ctx.derivative(x), None, None
 
 
+class _PowerOfPositive(torch.autograd.Function):
+    """x**e for x > 0, its x-slope taken as ((g·y)·e)/x: 0 where the incoming g is 0, where
+    pow's own backward, g·(e·x^(e−1)), gives 0·inf = NaN once the slope overflows (e < 1, tiny x)."""
+
+    @staticmethod
+    def forward(ctx, x, e):
+        y = x ** e
+        ctx.e = e
+        ctx.save_for_backward(x, y, e if isinstance(e, torch.Tensor) else None)
+        return y
+
+    @staticmethod
+    def backward(ctx, g):
+        x, y, e_tensor = ctx.saved_tensors
+        gy = g * y
+        gx = gy * ctx.e / x if ctx.needs_input_grad[0] else None
+        ge = (gy * torch.log(x)).sum_to_size(e_tensor.shape) if ctx.needs_input_grad[1] else None
+        return gx, ge
+
+
 class TorchOps:
     pi = math.pi
     inf = math.inf
@@ -56,6 +76,12 @@ class TorchOps:
     @staticmethod
     def softplus(x):
         return torch.nn.functional.softplus(x, threshold=40.0)
+
+    @staticmethod
+    def power(x, e):
+        if isinstance(e, torch.Tensor) or e < 1.0:
+            return _PowerOfPositive.apply(x, e)
+        return x ** e  # e >= 1: its slope e·x^(e−1) is finite wherever x**e is
 
     @staticmethod
     def minimum(a, b):
