@@ -29,7 +29,7 @@ import numpy as np
 
 from .errors import DegenerateCameraError, InputValueError, ParameterError, ShapeError
 from .ops import numpy_ops
-from .params import is_backend_array
+from .params import is_backend_array, non_real_kind
 
 #: kind of each array parameter, used by backends to convert them: "vec3" -> [B?, 3], "scalar" -> [B?]
 VEC3, SCALAR = "vec3", "scalar"
@@ -184,11 +184,8 @@ class Camera:
             if _mixes_tensors(value):
                 raise ParameterError(f"{name} parameter {k}={value!r} mixes numbers and tensors: give one tensor "
                                      f"(e.g. torch.stack), which keeps its gradient")
-            if is_backend_array(value):  # (a cast would make True 1°, or drop imaginary parts)
-                dtype = str(getattr(value, "dtype", "")).rsplit(".", 1)[-1]
-                kind = type(value).__name__  # Dr.Jit arrays have no dtype: Bool, Array3b, TensorXb are bools
-                if dtype == "bool" or dtype.startswith("complex") or (not dtype and (kind == "Bool" or kind.endswith("b"))):
-                    raise ParameterError(f"{name} parameter {k} must be a real tensor, got {dtype or kind}")
+            if is_backend_array(value) and non_real_kind(value):  # (a cast would make True 1°)
+                raise ParameterError(f"{name} parameter {k} must be a real tensor, got {non_real_kind(value)}")
             if not (_plain(value) or is_backend_array(value)):
                 raise ParameterError(f"{name} parameter {k}={value!r} must be a number, a sequence of numbers, "
                                      f"a float NumPy array or a torch/Dr.Jit tensor")

@@ -65,11 +65,28 @@ def is_backend_array(v) -> bool:
     return mod.startswith("torch") or mod.startswith("drjit")
 
 
+def short_number(v) -> str:
+    """``v`` as ``{:g}`` (``2``, ``0.5``, ``1e-05``) where that reads back as ``v``, else its shortest
+    round-trip form (``2.0000001``): labels name settings uniquely."""
+    s = f"{v:g}"
+    return s if float(s) == float(v) else repr(float(v))
+
+
+def non_real_kind(v) -> str | None:
+    """The element type of a bool or complex torch tensor / Dr.Jit array (a cast would make True 1
+    or drop imaginary parts), else None. Dr.Jit arrays have no dtype: Bool, Array3b, TensorXb are bools."""
+    dtype = str(getattr(v, "dtype", "")).rsplit(".", 1)[-1]
+    kind = type(v).__name__
+    if dtype == "bool" or dtype.startswith("complex") or (not dtype and (kind == "Bool" or kind.endswith("b"))):
+        return dtype or kind
+    return None
+
+
 def plain_number(v) -> float | None:
     """``float(v)`` for a real number (Python or NumPy) or a NumPy array of one, else None: strings,
     bools and other objects are not numbers here (``float("2")`` and ``float(True)`` would pass)."""
-    if isinstance(v, (str, bytes, bool)) or type(v).__name__ == "bool_":
-        return None
+    if isinstance(v, (str, bytes, bool)):
+        return None  # (NumPy bools: their dtype kind "b", below)
     if hasattr(v, "__array__") and not is_backend_array(v) and getattr(v, "size", 0) == 1:
         if getattr(v, "dtype", None) is None or v.dtype.kind not in "iuf":
             return None
@@ -82,7 +99,9 @@ def plain_number(v) -> float | None:
 def array_value(owner: str, name: str, raw) -> float:
     """The float value of a scalar backend array ``raw`` (torch: detached; Dr.Jit: via NumPy).
 
-    Raises :class:`ParameterError` when it is not a single number."""
+    Raises :class:`ParameterError` when it is not a single real number."""
+    if non_real_kind(raw):
+        raise ParameterError(f"{owner} parameter {name} must be a real number, got a {non_real_kind(raw)} array")
     shape = tuple(getattr(raw, "shape", ()))
     if shape not in ((), (1,)):
         raise ParameterError(f"{owner} parameter {name} must be a scalar (0-d) array, got shape {list(shape)}")

@@ -389,8 +389,9 @@ class Renderer:
         max_pairs = _number("Renderer", "max_pairs", max_pairs, positive=True, integer=True)
         if cutoff is not None:
             cutoff = _number("Renderer", "cutoff", cutoff, positive=True)
-        if not isinstance(cull_backfaces, bool) and type(cull_backfaces).__name__ != "bool_":
+        if not isinstance(cull_backfaces, (bool, np.bool_)):
             raise ParameterError(f"Renderer parameter cull_backfaces={cull_backfaces!r} must be True or False")
+        cull_backfaces = bool(cull_backfaces)
         _check_texture_settings(texture_filter, texture_wrap)
         light = _triple("Renderer", "light_direction", light_direction)
         if not any(light):

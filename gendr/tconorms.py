@@ -46,7 +46,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 from .params import (Param, Registry, validate_params, POSITIVE, NONNEGATIVE, NEGATIVE, POSITIVE_NOT_ONE,
-                     Learnable, LearnableParams, array_of as _a)
+                     Learnable, LearnableParams, array_of as _a, short_number)
 from .errors import ParameterError
 from .ops import quiet_numpy
 
@@ -144,7 +144,7 @@ class TConorm(LearnableParams):
     def label(self) -> str:
         if not self.params:
             return self.name
-        return self.name + "(" + ",".join(f"{k}={v:g}" for k, v in self.params) + ")"
+        return self.name + "(" + ",".join(f"{k}={short_number(v)}" for k, v in self.params) + ")"
 
     def __repr__(self) -> str:
         return f"TConorm({self.label()!r})"

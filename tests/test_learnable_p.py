@@ -209,6 +209,24 @@ def test_non_scalar_or_nan_p():
         gendr.tconorm("yager", p=torch.tensor(float("nan")))
 
 
+def test_bool_or_foreign_arrays_as_p():
+    """A bool tensor was taken as p = 1 (p=True and np.array(True) were refused); a Dr.Jit array
+    rendered with the torch backend raised a bare TypeError from float()."""
+    dr = pytest.importorskip("drjit")
+    from drjit.llvm.ad import Bool, Float64
+    for bad in (torch.tensor(True), Bool(True)):
+        with pytest.raises(ParameterError, match="must be a real number"):
+            gendr.tconorm("yager", p=bad)
+    with pytest.raises(ParameterError, match="must be a real number"):
+        gendr.distribution("gamma", shape=torch.tensor(True))
+    p = Float64(2.0)
+    dr.enable_grad(p)
+    v, f, cam = _scene()
+    r = gendr.Renderer("logistic", gendr.tconorm("yager", p=p), tau=0.08, image_size=8, backend="torch")
+    with pytest.raises(ParameterError, match="parameter p is a Float64: the torch backend takes"):
+        r.render(torch.as_tensor(v), f, cam)
+
+
 def test_learnable_label_and_plain_floats_unchanged():
     p = torch.tensor(2.5, requires_grad=True)
     t = gendr.tconorm("dombi", p=p)

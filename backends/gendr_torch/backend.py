@@ -97,6 +97,11 @@ class TorchBackend:
         if not isinstance(tau, (torch.Tensor, int, float)):  # (a Dr.Jit τ: float() of it is a TypeError)
             raise ParameterError(f"Renderer parameter tau={tau!r} of type {type(tau).__name__}: the torch backend "
                                  f"takes a number or a torch tensor")
+        for spec in (settings.tconorm, settings.distribution):
+            for k, v in spec.learnable.items():  # (float() of a Dr.Jit array: a TypeError, and no gradient)
+                if not isinstance(v, torch.Tensor):
+                    raise ParameterError(f"{spec.label()} parameter {k} is a {type(v).__name__}: the torch backend "
+                                         f"takes learnable parameters as torch tensors")
         faces = faces.to(verts.device)
         if texture is not None:
             tex, uv, uvf = texture
