@@ -622,7 +622,8 @@ DISTRIBUTIONS.add(DistributionFamily(
     support=_unbounded, tails=(EXPONENTIAL, EXPONENTIAL),
     log_sf=_hypsec_log_sf, log_cdf=_mirror(_hypsec_log_sf),
     accurate_logs=True,
-    doc="Hyperbolic secant (paper's form): F(x) = (2/π)·atan(exp(πx/2)), f(x) = sech(πx/2)/2.",
+    doc="Hyperbolic secant, unit variance: F(x) = (2/π)·atan(exp(πx/2)), f(x) = sech(πx/2)/2 (the "
+        "reference implementation's Gudermannian (2/π)·atan(exp(x)) is this law scaled by 2/π).",
 ))
 
 
