@@ -3,7 +3,9 @@ without writing anything; runs that fail anyway are reported, not shown as resul
 from __future__ import annotations
 
 import json
+import os
 
+import numpy as np
 import pytest
 
 pytest.importorskip("torch")
@@ -14,6 +16,14 @@ from gendr_experiments.common import check_config  # noqa: E402
 from gendr_experiments.sweep import summarize_best  # noqa: E402
 
 TINY = ["--set", "image_size=8", "--set", "views=1", "--set", "steps=1"]
+
+
+def _row(**fields):
+    """A result row with every field readers need (check_row), overridden by ``fields``."""
+    from gendr_experiments.shape import shape_config
+    row = {"key": "k", "experiment": "shape", "status": "ok", "instance": 5, "label": "x", "tau": 0.1, "lr": 0.05,
+           "seed": 0, "metric": 0.5, "seconds": 1.0, "config": shape_config(instance=5, tau=0.1)}
+    return {**row, **fields}
 
 
 @pytest.mark.parametrize("argv,words", [
@@ -85,6 +95,18 @@ def test_check_config_names_the_setting(key, value):
     (["sweep", "--experiment", "shape", "--instances", "1", "-o", "{dir}/notes.csv"], "refusing to append"),
     (["sweep", "--experiment", "shape", "--instances", "1", "--scheduler", "nonsense", "-o", "{dir}/r.jsonl"],
      "is not a Dask address"),
+    # (passed the check, then crashed in distributed with a traceback: TCP is what runs)
+    (["sweep", "--experiment", "shape", "--instances", "1", "--scheduler", "inproc://host", "-o", "{dir}/r.jsonl"],
+     "is not a Dask address"),
+    (["sweep", "--experiment", "shape", "--instances", "1", "--scheduler", "ucx://10.0.0.1:8786", "-o",
+      "{dir}/r.jsonl"], "is not a Dask address"),
+    # (a fine step of 400 overflowed, with a traceback, and nan failed, both after the coarse stage)
+    (["sweep", "--experiment", "shape", "--instances", "1", "--taus", "0.1", "--fine-steps", "400", "--workers", "0",
+      "-q", *TINY, "-o", "{dir}/r.jsonl"], "step 400.0 gives no finite tau > 0"),
+    (["sweep", "--experiment", "shape", "--instances", "1", "--taus", "0.1", "--fine-steps=nan,0.25", "--workers",
+      "0", "-q", *TINY, "-o", "{dir}/r.jsonl"], "step nan gives no finite tau > 0"),
+    (["tune", "--target", "tetrahedron", "--budget", "30", "--instances", "1", "--taus", "0.1", "--fine-steps",
+      "400", "--workers", "0", *TINY, "-o", "{dir}/t.jsonl"], "step 400.0 gives no finite tau > 0"),
     (["sweep", "--experiment", "shape", "--instances", "1", "--scheduler", "tcp://127.0.0.1:8786", "--workers", "2",
       "-o", "{dir}/r.jsonl"], "give one"),
     (["tune", "--target", "icosphere", "--budget", "10", "--top", "0"], "--top must be >= 1"),
@@ -119,9 +141,8 @@ def test_check_config_names_the_setting(key, value):
 def test_results_files_and_outputs_are_checked_before_any_work(tmp_path, capsys, argv, words):
     (tmp_path / "notrow.jsonl").write_text("[1, 2]\n")
     (tmp_path / "notes.csv").write_text("key,metric\n")
-    (tmp_path / "rows.jsonl").write_text(json.dumps({"key": "k", "experiment": "shape", "status": "ok"}) + "\n")
-    (tmp_path / "errors.jsonl").write_text(json.dumps({"key": "k", "experiment": "shape", "status": "error",
-                                                        "metric": None, "instance": 5, "label": "x"}) + "\n")
+    (tmp_path / "rows.jsonl").write_text(json.dumps(_row()) + "\n")
+    (tmp_path / "errors.jsonl").write_text(json.dumps(_row(status="error", metric=None)) + "\n")
     paths = {"missing": tmp_path / "missing.jsonl", "dir": tmp_path, "notrow": tmp_path / "notrow.jsonl",
              "rows": tmp_path / "rows.jsonl", "errors": tmp_path / "errors.jsonl"}
     before = sorted(p.name for p in tmp_path.iterdir())
@@ -191,3 +212,114 @@ def test_an_unreachable_scheduler_fails_fast_naming_it(tmp_path, capsys):
     assert code == 2 and f"gendr experiment: error: no Dask scheduler answers at {address}" in err, err
     assert seconds < 15, seconds  # the probe's timeout is 5 s; refused answers at once
     assert not (tmp_path / "r.jsonl").exists()
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="needs Linux's /proc (a folder nobody can write into)")
+@pytest.mark.parametrize("argv", [
+    ["sweep", "--experiment", "shape", "--instances", "1", "--taus", "0.1", "--no-refine", "--workers", "0", "-q",
+     *TINY, "-o", "/proc/gendr-test/r.jsonl"],
+    ["sweep", "--experiment", "shape", "--instances", "1", "--taus", "0.1", "--no-refine", "--workers", "0", "-q",
+     *TINY, "-o", "/proc/r.jsonl"],
+    ["tune", "--target", "tetrahedron", "--budget", "30", "--instances", "1", "--taus", "0.1", "--workers", "0",
+     *TINY, "-o", "/proc/t.jsonl"],
+    ["sweep", "--experiment", "shape", "--instances", "1", "--taus", "0.1", "--no-refine", "--workers", "0", "-q",
+     *TINY, "--csv", "/proc/r.csv", "-o", "{dir}/r.jsonl"],
+])
+def test_an_unwritable_output_fails_before_any_run(tmp_path, capsys, monkeypatch, argv):
+    """As root os.access says yes to /proc: the runs ran, then writing their rows failed (exit 1)."""
+    import gendr_experiments.sweep as sweep
+
+    def no_runs(*args, **kw):
+        raise AssertionError("a run started")
+    monkeypatch.setattr(sweep, "run_config", no_runs)
+    code = gendr_main(["experiment", *[a.format(dir=tmp_path) for a in argv]])
+    err = capsys.readouterr().err
+    assert code == 2 and "is not writable" in err and "Traceback" not in err, err
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("command", [["findings"], ["figures", "-o", "{dir}/figs"], ["verify"], ["cost"]])
+@pytest.mark.parametrize("bad, words", [
+    (dict(seconds=None), "field seconds=None must be a number"),
+    (dict(metric="0.5"), "field metric='0.5' must be a number or null"),
+    (dict(instance=True), "field instance=True must be an integer or null"),
+    ("-seconds", "the row lacks the field 'seconds'"),
+    ("-config", "the row lacks the field 'config'"),
+    ("-status", "the row lacks the field 'status'"),
+])
+def test_rows_missing_a_field_or_of_a_wrong_type_name_file_line_and_field(tmp_path, capsys, monkeypatch, command,
+                                                                          bad, words):
+    """(KeyError / TypeError tracebacks in findings, figures and verify; cost said "no rows to fit", exit 0)"""
+    import gendr_experiments.sweep as sweep
+    monkeypatch.setattr(sweep, "run_config", None)  # verify must not re-run anything
+    row = _row(key="k2")
+    if isinstance(bad, str):
+        del row[bad[1:]]
+    else:
+        row.update(bad)
+    path = tmp_path / "rows.jsonl"
+    path.write_text(json.dumps(_row()) + "\n" + json.dumps(row) + "\n")
+    code = gendr_main(["experiment", *[a.format(dir=tmp_path) for a in command], str(path)])
+    err = capsys.readouterr().err
+    assert code == 2 and f"{path}: line 2" in err and words in err and "Traceback" not in err, err
+    assert not (tmp_path / "figs").exists()
+
+
+def test_a_corrupt_line_before_the_last_is_an_error_naming_it(tmp_path, capsys):
+    """(it was skipped without a word: only a row cut short by a kill is skipped, wherever a resume
+    left it)"""
+    from gendr.errors import InputValueError
+    from gendr_experiments.sweep import load_rows
+    path = tmp_path / "rows.jsonl"
+    good = [json.dumps(_row(key=k)) for k in ("a", "b")]
+    path.write_text(good[0] + '\n{"key": "zz", "experiment": "shape", "metric": 0.1, <<corrupt\n' + good[1] + "\n")
+    with pytest.raises(InputValueError, match=r"rows.jsonl: line 2 is not JSON \(.*column 53\)"):
+        load_rows(path)
+    assert gendr_main(["experiment", "findings", str(path)]) == 2
+    assert f"{path}: line 2 is not JSON" in capsys.readouterr().err
+    for text in ("<<<<<<< HEAD", "garbage", '{"key": "a"} extra'):
+        path.write_text(good[0] + "\n" + text + "\n" + good[1] + "\n")
+        with pytest.raises(InputValueError, match="line 2 is not JSON"):
+            load_rows(path)
+    # every prefix of a row is what a kill leaves: skipped, before other rows (a resume appends
+    # after it) or last
+    for k in range(1, len(good[1])):
+        path.write_text(good[0] + "\n" + good[1][:k] + "\n" + good[1] + "\n" + good[1][:k])
+        assert [r["key"] for r in load_rows(path)] == ["a", "b"], good[1][:k]
+
+
+def test_verify_reports_a_failed_rerun_as_an_error_not_a_drift(tmp_path, capsys):
+    """(a re-run that failed, here its mesh is gone, was a drift of inf, written as Infinity: not JSON)"""
+    from gendr_experiments.shape import shape_config
+    cfg = shape_config(instance=5, tau=0.1, target=str(tmp_path / "gone.obj"), steps=1, image_size=8, views=1)
+    path = tmp_path / "rows.jsonl"
+    path.write_text(json.dumps(_row(config=dict(cfg, experiment="shape"))) + "\n")
+    out = tmp_path / "v.json"
+    code = gendr_main(["experiment", "verify", str(path), "--json", str(out)])
+    captured = capsys.readouterr()
+    assert code == 1 and "re-run failed" in captured.out and "gone.obj" in captured.out, captured
+    assert "0 beyond tolerance, 1 re-runs failed" in captured.err
+
+    def not_json(name):
+        raise AssertionError(f"{name} is not JSON")
+    [v] = json.loads(out.read_text(), parse_constant=not_json)
+    assert v["drift"] is None and not v["ok"] and v["status"].startswith("error: ") and "gone.obj" in v["status"]
+
+
+@pytest.mark.parametrize("value", [3.7, "12", True, None])
+def test_a_config_instance_must_be_an_integer(value):
+    """(int() made 3.7, "12" and True instances 3, 12 and 1; grid_instance took True)"""
+    from gendr_experiments.common import grid_instance, instance_from_config
+    from gendr_experiments.shape import shape_config
+    if value is None:
+        with pytest.raises(ParameterError, match="instance index None"):
+            grid_instance(None)
+        assert grid_instance(np.int64(3)).name == instance_from_config({"instance": 3})[2]
+        return
+    with pytest.raises(ParameterError, match=f"instance index {value!r} must be an integer"):
+        instance_from_config({"instance": value})
+    with pytest.raises(ParameterError, match=f"instance={value!r} must be None or an integer >= 0"):
+        shape_config(instance=value)
+    if value is True:
+        with pytest.raises(ParameterError, match="instance index True"):
+            grid_instance(True)

@@ -173,6 +173,7 @@ def test_a_run_during_which_the_source_changed_is_an_error_row(tmp_path, monkeyp
     assert other["status"] == "error" and other["metric"] is None
     assert "CodeChangedError" in other["error"] and "e" * 16 in other["error"] and other["code_hash"] == here
     assert "hard_iou_loss_best" not in other and "best_step" not in other  # no results of unknown code
+    assert other["seconds"] > 0  # (the runner's wall seconds are kept: readers need them)
     monkeypatch.setattr(sweep, "read_source_hash", lambda backend="torch": "d" * 16)  # edited mid-run
     rows = execute(cfgs, tmp_path / "r.jsonl", workers=0, progress=False)
     assert [r["status"] for r in rows] == ["error", "error"]
@@ -280,3 +281,22 @@ def test_sweep_cli_counts_reruns_as_runs(tmp_path, capsys):
     assert gendr_main(args + ["--other-code", "rerun"]) == 0
     err = capsys.readouterr().err
     assert "2 runs in" in err and "; 2 rows in" in err  # two runs replaced two rows
+
+
+def test_rows_of_other_settings_are_not_averaged_as_seeds():
+    """(rows of one instance, τ and lr were averaged whatever their other settings: a file holding
+    a 30-step and a 40-step run scored their mean as two seeds of one setting)"""
+    def row(metric, **cfg):
+        config = {**TINY, "instance": 5, "tau": 0.1, "lr": 0.05, "seed": 0, "elevation": 30.0, "experiment": "shape",
+                  **cfg}
+        return {"key": json.dumps(config, sort_keys=True), "experiment": "shape", "status": "ok", "instance": 5,
+                "label": "uniform|hamacher(p=4)", "tau": 0.1, "lr": 0.05, "seed": config["seed"], "metric": metric,
+                "seconds": 1.0, "config": config}
+    # seeds and elevations of one setting: averaged (by design, --seeds and --elevations)
+    averaged = summarize_best([row(0.2, seed=0), row(0.4, seed=1), row(0.6, seed=1, elevation=-30.0)])
+    assert averaged[5]["n"] == 3 and averaged[5]["score"] == pytest.approx(0.4)
+    # another step count or image size is another setting: the best of them, never a mean
+    mixed = summarize_best([row(0.6, seed=0, steps=30), row(0.2, seed=1, steps=40), row(0.1, image_size=16)])
+    assert mixed[5]["n"] == 1 and mixed[5]["score"] == 0.1
+    mixed = summarize_best([row(0.6, seed=0, steps=30), row(0.2, seed=1, steps=40)])
+    assert mixed[5]["n"] == 1 and mixed[5]["score"] == 0.2

@@ -238,3 +238,27 @@ def test_calibration_from_one_work_level_scales_with_the_pairs():
     cal.fit(rows + [{"key": "k3", "status": "ok", "seconds": 12.0, "config": "b"}], feats.get)
     assert cal.w0 is None and cal.b > 0
     assert cal.predict(feats["b"]) == pytest.approx(cal.a + cal.b * T._work(feats["b"]))
+
+
+def test_a_resumed_tune_with_nothing_to_run_ranks_like_the_run_it_resumes(tmp_path):
+    """The ranking counted the fine runs only of the instances refined in this invocation: a first
+    run whose rounds refined more instances than the resume's top (a budget-limited run's earlier
+    rounds; here top=2, then top=1) got another winner and "refined: no" on resume, with no run."""
+    store = tmp_path / "t.jsonl"
+    kw = dict(store=store, base=dict(TINY, steps=2), workers=0, taus=(0.1, 0.02), fine_steps=(-0.25, 0.25),
+              instances=[271, 379])
+    first = tune("tetrahedron", budget=60.0, top=2, **kw)
+    assert [b["refined"] for b in first.ranking] == [True, True] and first.plan["fine_instances"] == 2
+    again = tune("tetrahedron", budget=10.0, top=1, **kw)
+    assert again.runs == 0
+    assert again.ranking == first.ranking and again.plan["fine_instances"] == 2
+
+
+@pytest.mark.parametrize("steps", [(400.0,), (float("nan"),), (-400.0,), (0.25, float("inf"))])
+def test_tune_rejects_fine_steps_without_a_finite_tau_before_running(tmp_path, steps):
+    """(400 overflowed with an OverflowError after the whole coarse stage; nan and -400 (tau 0)
+    failed there too)"""
+    with pytest.raises(ParameterError, match=r"tune fine_steps \(CLI --fine-steps\) step .* gives no finite tau > 0"):
+        tune("tetrahedron", budget=30, store=tmp_path / "t.jsonl", base=dict(TINY, steps=2), workers=0,
+             taus=(0.1,), fine_steps=steps, instances=[271])
+    assert not (tmp_path / "t.jsonl").exists()

@@ -5,6 +5,7 @@ import argparse
 import json
 import os
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -378,8 +379,10 @@ def cmd_sweep(a) -> int:
         if a.workers is not None:
             raise UsageError("--scheduler runs on the cluster's workers; --workers is for local runs: give one")
         import re
-        if not re.fullmatch(r"(tcp|tls|inproc|ucx)://[^\s:/]+(:\d+)?/?", a.scheduler):
-            raise UsageError(f"--scheduler {a.scheduler!r} is not a Dask address like tcp://HOST:8786")
+        # tcp only: inproc:// and ucx:// passed this check, then crashed in distributed with a traceback
+        if not re.fullmatch(r"tcp://[^\s:/]+(:\d+)?/?", a.scheduler):
+            raise UsageError(f"--scheduler {a.scheduler!r} is not a Dask address like tcp://HOST:8786 "
+                             f"(TCP is the protocol supported)")
     _writable(a.csv, "--csv")
     _rows_file(a.output)
     _check_device(a, [full_config(a.experiment, plan["base"]).get("backend")])
@@ -422,7 +425,7 @@ def _last_lines(path, n) -> list[dict]:
 
 def _results(files, experiment=None) -> list[dict]:
     """The rows of results files (of one experiment, if given); a path that is not a file, or a line
-    that is JSON but not a row, is a UsageError naming it."""
+    that is not a valid row (:func:`~gendr_experiments.sweep.check_row`), is a UsageError naming it."""
     from .sweep import load_rows
     for f in files or []:
         if not Path(f).is_file():
@@ -431,18 +434,33 @@ def _results(files, experiment=None) -> list[dict]:
         rows = [r for f in files or [] for r in load_rows(f)]
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    for r in rows:
-        if "experiment" not in r:
-            raise UsageError(f"{files}: a row without 'experiment' is not a result row: {json.dumps(r)[:80]}")
     return [r for r in rows if experiment is None or r["experiment"] == experiment]
+
+
+def _probe_write(path, option):
+    """A real write test of ``path`` before the work (as root, os.access says yes to /proc and
+    read-only mounts; the runs then ended in an error after all of them): an existing file is opened
+    for appending, writing nothing; else a nameless temporary file is made in the nearest existing
+    folder (the missing ones are made when the rows are written). Leaves nothing behind."""
+    p = Path(path)
+    try:
+        if p.is_file():
+            open(p, "ab").close()
+        else:
+            folder = next(d for d in p.absolute().parents if d.exists())
+            tempfile.TemporaryFile(dir=folder).close()
+    except OSError as e:
+        where = str(p) if p.is_file() else f"the folder {str(folder)!r}"
+        raise UsageError(f"{option} {str(path)!r}: {where} is not writable ({e.strerror or e})") from None
 
 
 def _rows_file(path):
     """-o of a sweep or tune: a JSONL file of rows to append to (new, or starting with a row); not a
-    directory, not some other file (rows were appended to a CSV)."""
+    directory, not some other file (rows were appended to a CSV), and writable."""
     p = Path(path)
     if p.is_dir():
         raise UsageError(f"-o {str(path)!r} is a directory; name the JSONL file of rows")
+    _probe_write(p, "-o")
     if p.is_file() and p.stat().st_size:
         with open(p, "rb") as f:
             first = f.readline(1 << 20)
@@ -464,6 +482,7 @@ def _writable(path, option):
         raise UsageError(f"{option} {str(path)!r} is a directory; name the file to write")
     if not p.parent.is_dir():
         raise UsageError(f"{option} {str(path)!r}: the folder {str(p.parent)!r} does not exist")
+    _probe_write(p, option)
 
 
 def _no_rows(files, what="rows") -> int:
@@ -490,20 +509,26 @@ def cmd_verify(a) -> int:
     print(f"{'key':16s} {'label':40s} {'stored':>9s} {'now':>9s} {'drift':>9s} {'tol':>6s} code, cpu")
     for v in report:
         fmt = lambda x: "None" if x is None else f"{x:9.4g}"
+        if v["status"].startswith("error"):  # the re-run failed: nothing to compare
+            print(f"{v['key']:16s} {str(v['label'])[:40]:40s} {fmt(v['stored']):>9s} re-run failed: "
+                  f"{v['status'][len('error: '):]}")
+            continue
         code = "same code" if v["same_code"] else f"other code ({v['stored_code']})"
         cpu = "same cpu" if v["same_cpu"] else f"other cpu ({v['stored_simd'] or 'not recorded'})"
         cpu += "" if v["same_device"] else f", other device (now {a.device})"
         resid = (f", median error drift {v['residual_drift']:.3g} deg (tol {v['residual_tolerance']:.3g})"
                  if "residual_drift" in v else "")
         print(f"{v['key']:16s} {str(v['label'])[:40]:40s} {fmt(v['stored']):>9s} {fmt(v['now']):>9s} "
-              f"{v['drift']:9.3g} {v['tolerance']:6.3g} {code}, {cpu}{resid}{'' if v['ok'] else '  DRIFT'}")
-    bad = [v for v in report if not v["ok"]]
-    print(f"{len(report)} rows re-run, {len(bad)} beyond tolerance, {sum(not v['same_code'] for v in report)} "
+              f"{fmt(v['drift']):>9s} {v['tolerance']:6.3g} {code}, {cpu}{resid}{'' if v['ok'] else '  DRIFT'}")
+    failed = [v for v in report if v["status"].startswith("error")]
+    bad = [v for v in report if v["status"] == "drift"]
+    print(f"{len(report)} rows re-run, {len(bad)} beyond tolerance, {len(failed)} re-runs failed (an error, not a "
+          f"drift), {sum(not v['same_code'] for v in report)} "
           f"made by other code, {sum(not v['same_cpu'] for v in report)} on another CPU SIMD level "
           f"(this one: {cpu_info()['simd']})", file=sys.stderr)
-    if a.json:
-        Path(a.json).write_text(json.dumps(report, indent=1))
-    return 1 if bad else 0
+    if a.json:  # (drift is None, not Infinity, where there is no number: standard JSON)
+        Path(a.json).write_text(json.dumps(report, indent=1, allow_nan=False))
+    return 1 if bad or failed else 0
 
 
 def cmd_findings(a) -> int:

@@ -39,9 +39,10 @@ def _grid():
 def grid_instance(index: int):
     """Instance ``index`` of :func:`gendr.paper_grid` (0 <= index < 1242)."""
     g = _grid()
-    if not (isinstance(index, int) and 0 <= index < len(g)):
+    # (a bool is an int to Python: True would be instance 1)
+    if not (isinstance(index, (int, np.integer)) and not isinstance(index, bool) and 0 <= index < len(g)):
         raise ParameterError(f"instance index {index!r} must be an integer in [0, {len(g) - 1}]")
-    return g[index]
+    return g[int(index)]
 
 
 def instance_from_config(cfg: dict):
@@ -49,7 +50,7 @@ def instance_from_config(cfg: dict):
     ``distribution`` / ``tconorm`` as dicts of :func:`gendr.distribution` / :func:`gendr.tconorm`
     keyword arguments (``{"name": "logistic", "squared": true}``) or plain names."""
     if cfg.get("instance") is not None:
-        inst = grid_instance(int(cfg["instance"]))
+        inst = grid_instance(cfg["instance"])  # (int() made 3.7, "12" and True instances 3, 12 and 1)
         return inst.distribution, inst.tconorm, inst.name
     d, t = cfg.get("distribution", "logistic"), cfg.get("tconorm", "probabilistic")
     dist = gendr.distribution(**d) if isinstance(d, dict) else gendr.distribution(d)
@@ -102,6 +103,7 @@ CONFIG_DOMAINS = {
     **{k: (lambda v: _is_num(v) and 0 <= v <= 180, "in [0, 180] degrees")
        for k in ("angle_min", "angle_max", "init_view_angle_min", "init_view_angle_max")},
     "elevation": (_is_num, "a finite number (degrees)"),
+    "instance": (lambda v: v is None or (_is_int(v) and v >= 0), "None or an integer >= 0 (a grid index)"),
     "eps": (lambda v: _is_num(v) and 0 <= v < 1, "in [0, 1)"),
     "cutoff": (lambda v: v is None or (_is_num(v) and v > 0), "None or a number > 0"),
     "metric": (lambda v: v in ("final", "best"), "'final' or 'best'"),

@@ -21,6 +21,7 @@ import itertools
 import json
 import math
 import os
+import re
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -28,13 +29,14 @@ from pathlib import Path
 
 import numpy as np
 
-from gendr.errors import GendrError, ParameterError
+from gendr.errors import GendrError, InputValueError, ParameterError
 
 from .common import config_hash, provenance, read_source_hash, source_hash
 
-__all__ = ["EXPERIMENTS", "OtherCodeError", "SchedulerUnreachableError", "full_config", "expand", "run_config",
-           "ResultStore", "execute", "load_rows", "aggregate", "best_setting_search", "fine_grid", "summarize_best", "write_csv", "verify_rows",
-           "DRIFT_TOLERANCE"]
+__all__ = ["EXPERIMENTS", "OtherCodeError", "SchedulerUnreachableError", "ResultsFileError", "full_config",
+           "expand", "run_config", "ResultStore", "execute", "load_rows", "check_row", "aggregate",
+           "best_setting_search", "fine_grid", "check_fine_steps", "summarize_best", "write_csv", "verify_rows",
+           "DRIFT_TOLERANCE", "AVERAGED_KEYS"]
 
 #: experiment name -> (defaults, runner path, the config key the τ grid sets, lower_is_better aggregate)
 EXPERIMENTS = {"shape": "tau", "pose": "tau_start"}
@@ -162,8 +164,8 @@ def run_config(cfg: dict, device: str = "cpu", code_hash: str | None = None) -> 
     row["code_hash"] = ran_with
     on_disk = read_source_hash(backend)
     if on_disk != ran_with or (code_hash is not None and code_hash != ran_with):
-        for k in res:  # no results of unknown code (successes, errors, ...: aggregate would read them)
-            row.pop(k, None)
+        for k in set(res) - {"seconds"}:  # no results of unknown code (successes, errors, ...: aggregate
+            row.pop(k, None)             # would read them); the wall seconds are this runner's, kept
         started = f", {code_hash} when the sweep started" if code_hash is not None else ""
         row.update(status="error", metric=None,
                    error=f"CodeChangedError: the source changed while this run ran: code_hash {ran_with} in this "
@@ -213,8 +215,8 @@ def check_base(base, decided: dict, who: str, fixed=None):
 
 
 class ResultStore:
-    """Append-only JSON-lines table of result rows keyed by ``key``. A torn last line (the process
-    was killed while writing) is ignored when reading."""
+    """Append-only JSON-lines table of result rows keyed by ``key``. A torn line (the process was
+    killed while writing) is ignored when reading (:func:`load_rows`)."""
 
     def __init__(self, path):
         self.path = Path(path)
@@ -240,8 +242,73 @@ class ResultStore:
             os.fsync(f.fileno())
 
 
+class ResultsFileError(InputValueError):
+    """A results file with a line that is not a result row: not JSON (and not a row cut short by a
+    kill), or a row missing a field or with a field of the wrong type. Names the file and line."""
+
+
+def _number(v):
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _integer(v):
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+#: field -> (test, what it must be): every row has these (run_config writes them, errors included),
+#: and a finished (status ok) row its ``seconds``
+ROW_FIELDS = {
+    "key": (lambda v: isinstance(v, str) and v != "", "a non-empty string"),
+    "experiment": (lambda v: v in EXPERIMENTS, f"one of {sorted(EXPERIMENTS)}"),
+    "status": (lambda v: v in ("ok", "error"), "'ok' or 'error'"),
+    "config": (lambda v: isinstance(v, dict), "an object, the run's full config"),
+    "metric": (lambda v: v is None or _number(v), "a number or null"),
+}
+#: field -> (test, what it must be) where a row has it (older rows lack some; error rows of code
+#: changed during the run lack ``seconds``)
+OPTIONAL_ROW_FIELDS = {
+    "seconds": (lambda v: _number(v) and v >= 0, "a number of seconds >= 0"),
+    **{k: (lambda v: v is None or _number(v), "a number or null") for k in ("cpu_seconds",)},
+    **{k: (_number, "a number") for k in ("tau", "tau_start", "lr", "elevation")},
+    **{k: (_integer, "an integer") for k in ("seed", "pairs")},
+    "instance": (lambda v: v is None or _integer(v), "an integer or null"),
+    "successes": (lambda v: v is None or _integer(v), "an integer or null"),
+    "label": (lambda v: isinstance(v, str), "a string"),
+    "residual_deg": (lambda v: v is None or (isinstance(v, list) and all(x is None or _number(x) for x in v)),
+                     "a list of numbers or null"),
+}
+
+
+def check_row(row, where: str = "a row") -> None:
+    """:class:`ResultsFileError` naming ``where`` (file and line) and the first missing or
+    ill-typed field of ``row`` (:data:`ROW_FIELDS`, :data:`OPTIONAL_ROW_FIELDS`): readers index
+    these fields, so a bad row is reported here, not as a KeyError or TypeError later."""
+    if not isinstance(row, dict) or "key" not in row:
+        raise ResultsFileError(f"{where} is not a result row (a JSON object with a 'key'): {json.dumps(row)[:60]}")
+    fields = {**ROW_FIELDS, **OPTIONAL_ROW_FIELDS}
+    for k in [*ROW_FIELDS, *(["seconds"] if row.get("status") == "ok" else [])]:
+        if k not in row:
+            raise ResultsFileError(f"{where}: the row lacks the field {k!r}, which must be {fields[k][1]}")
+    for k, (ok, want) in fields.items():
+        if k in row and not ok(row[k]):
+            raise ResultsFileError(f"{where}: field {k}={row[k]!r} must be {want}")
+
+
+#: what may follow the point where a row cut short by a kill stops parsing: the rest of an open
+#: string, of a \u escape, or of a number or literal (json reports those errors at their start)
+_TORN_TAIL = re.compile(r'(?:"(?:[^"\\]|\\.)*\\?|\\u[0-9a-fA-F]{0,3}|[-+.0-9eEtruefalsn]*)')
+
+
+def _torn(line: str, err: json.JSONDecodeError) -> bool:
+    """Is ``line`` the start of a row whose writer was killed (a prefix of a JSON object)? Such a
+    line stays where it is when the resumed sweep appends after it, so it is not always the last."""
+    return line.startswith("{") and _TORN_TAIL.fullmatch(line[err.pos:]) is not None
+
+
 def load_rows(path) -> list[dict]:
-    """Rows of a results file; the last row per key wins (a retried error replaces the error)."""
+    """Rows of a results file; the last row per key wins (a retried error replaces the error).
+    A row cut short by a kill (a prefix of a JSON object) is skipped: its key reruns. Any other line
+    that is not a valid row (:func:`check_row`) is a :class:`ResultsFileError` naming file and line."""
     path = Path(path)
     if not path.exists():
         return []
@@ -252,10 +319,12 @@ def load_rows(path) -> list[dict]:
             continue
         try:
             row = json.loads(line)
-        except json.JSONDecodeError:
-            continue  # a torn line (a run killed while writing); its key reruns
-        if not isinstance(row, dict) or "key" not in row:
-            raise ValueError(f"{path}: line {i} is not a result row (a JSON object with a 'key'): {line[:60]}")
+        except json.JSONDecodeError as err:
+            if _torn(line, err):
+                continue  # a torn line (a run killed while writing); its key reruns
+            raise ResultsFileError(f"{path}: line {i} is not JSON ({err.msg}, column {err.pos + 1}) and not a row "
+                                   f"cut short by a kill: {line[:60]!r}; repair or delete that line") from None
+        check_row(row, f"{path}: line {i}")
         by_key[row["key"]] = row
     return list(by_key.values())
 
@@ -402,7 +471,8 @@ def aggregate(rows) -> dict:
     rows = list(rows)
     exp = rows[0]["experiment"]
     vals = [r["metric"] if r.get("metric") is not None else (1.0 if exp == "shape" else 180.0) for r in rows]
-    out = {"n": len(rows), "mean_metric": float(np.mean(vals)), "seconds": float(np.mean([r["seconds"] for r in rows])),
+    secs = [r["seconds"] for r in rows if r.get("seconds") is not None]  # (error rows may have none)
+    out = {"n": len(rows), "mean_metric": float(np.mean(vals)), "seconds": float(np.mean(secs)) if secs else math.nan,
            "errors": sum(r.get("status") == "error" for r in rows)}
     if exp == "pose":
         if any("pairs" in r for r in rows):  # lookat rows: a batch of pairs each
@@ -426,13 +496,6 @@ def _finite_or(x, worst):
     return float(x) if x is not None and math.isfinite(x) else worst
 
 
-def _group(rows, keys):
-    groups = {}
-    for r in rows:
-        groups.setdefault(tuple(r.get(k) for k in keys), []).append(r)
-    return groups
-
-
 def fine_grid(best: float, steps=(-0.5, -0.25, 0.25, 0.5), coarse=()) -> list[float]:
     """τ values around ``best`` at ``best·10^s`` (the finer, second stage of the search), rounded to 6
     digits, except where ``best·10^s`` is (to 1e-9, relative) ``best`` or a ``coarse`` τ: then that
@@ -444,6 +507,24 @@ def fine_grid(best: float, steps=(-0.5, -0.25, 0.25, 0.5), coarse=()) -> list[fl
         x = best * 10 ** s
         out.append(next((c for c in known if abs(x - c) <= 1e-9 * abs(c)), float(f"{x:.6g}")))
     return out
+
+
+def check_fine_steps(fine_steps, taus, who: str = "fine_steps") -> list[float]:
+    """``fine_steps`` as floats, or a :class:`~gendr.errors.ParameterError` naming the first step
+    that is not finite or gives no finite τ > 0 around some coarse τ of ``taus`` (the best τ is
+    one of them): 10**400 overflowed, 10**-400 is a τ of 0, both after the whole coarse stage."""
+    steps = []
+    for s in fine_steps:
+        try:
+            s = float(s)
+            ok = math.isfinite(s) and all(math.isfinite(t) and t > 0 for b in taus for t in fine_grid(float(b), [s]))
+        except (TypeError, ValueError, OverflowError):
+            ok = False
+        if not ok:
+            raise ParameterError(f"{who} step {s!r} gives no finite tau > 0 around the coarse taus {list(taus)} "
+                                 f"(tau = best_tau * 10**step)")
+        steps.append(s)
+    return steps
 
 
 #: config keys that name the renderer instance (set by a search's instance list, never by its base)
@@ -465,6 +546,8 @@ def best_setting_search(experiment: str, instances, *, taus, lrs, seeds=(0,), ba
         for name in (k if isinstance(k, tuple) else (k,)):
             decided[name] = f"the search axis {name} (CLI {AXIS_OPTIONS.get(name, '--' + name)})"
     check_base(base, decided, f"the {experiment} search")
+    if refine:  # (a bad step failed only after the whole coarse stage)
+        fine_steps = check_fine_steps(fine_steps, taus, f"the {experiment} search's fine_steps (CLI --fine-steps)")
     configs = expand(experiment, base, instances=instances, axes=axes)
     rows = execute(configs, store, **execute_kw)
     if refine:
@@ -483,16 +566,35 @@ def best_setting_search(experiment: str, instances, *, taus, lrs, seeds=(0,), ba
     return summarize_best(rows, experiment)
 
 
+#: config keys a setting's runs are averaged over (:func:`aggregate`): seeds, shape elevations
+#: (``--elevations``), pose bins (``--bins``); every other config key makes another setting
+AVERAGED_KEYS = ("seed", "elevation", "angle_min", "angle_max")
+
+
+def _setting(row, tau_key) -> str:
+    """The config of ``row`` but the averaged axes (and the instance, τ and lr, which
+    :func:`summarize_best` groups by): rows of one setting agree on it."""
+    skip = {*AVERAGED_KEYS, *INSTANCE_KEYS, tau_key, "lr"}
+    return json.dumps({k: v for k, v in (row.get("config") or {}).items() if k not in skip}, sort_keys=True)
+
+
 def summarize_best(rows, experiment: str | None = None) -> dict:
     """instance -> the best setting: ``{tau(_start), lr, score, mean_metric, (success_rate), n, errors, label}``.
     Runs outside the grid (no instance index, e.g. the "average" aggregation) are keyed by label.
-    Settings whose runs all ended in an error have no result and are left out."""
+    A setting is an instance, τ, lr and every other config key but :data:`AVERAGED_KEYS`: its runs
+    (seeds, elevations, bins) are averaged; rows that differ in another key (steps, image size,
+    target, ...) are other settings, never averaged together. Settings whose runs all ended in an
+    error have no result and are left out."""
     rows = [r for r in rows if experiment is None or r["experiment"] == experiment]
     if not rows:
         return {}
     tau_key = EXPERIMENTS[rows[0]["experiment"]]
     best = {}
-    for (inst, label, tau, lr), grp in _group(rows, ("instance", "label", tau_key, "lr")).items():
+    groups = {}
+    for r in rows:
+        groups.setdefault((r.get("instance"), r.get("label"), r.get(tau_key), r.get("lr"), _setting(r, tau_key)),
+                          []).append(r)
+    for (inst, label, tau, lr, _), grp in groups.items():
         if all(r.get("status") == "error" for r in grp):
             continue  # no result (a bad target, a crash): not a score of 1, and no finer grid around it
         agg = aggregate(grp)
@@ -535,9 +637,13 @@ def verify_rows(rows, *, sample: int | None = None, seed: int = 0, tolerance: fl
     their CPU count as another), else :func:`drift_tolerance`, unless ``tolerance`` is given.
     Returns one dict per row: ``key``, ``label``, ``stored``, ``now``, ``drift`` (absolute),
     ``tolerance``, ``ok``, ``same_code``, ``stored_code``, ``code``, ``same_cpu``, ``stored_simd``,
-    ``simd``, ``seconds``; for look-at pose rows also ``residual_drift`` (of the median final error,
+    ``simd``, ``seconds``, ``status`` ("ok", "drift", or "error: MESSAGE" when the re-run itself
+    failed: a missing data file is not a drift, and its ``drift`` is None); for look-at pose rows also
+    ``residual_drift`` (of the median final error,
     degrees) and ``residual_tolerance`` (0 when exact, else DRIFT_TOLERANCE["pose_residual"];
-    ``tolerance`` given applies to the metric only). Rows that ended in an error are skipped.
+    ``tolerance`` given applies to the metric only). ``drift`` is None where only one of the stored
+    and the new metric is a number (a run that became non-finite: beyond any tolerance). Rows that
+    ended in an error are skipped.
     ``device``: where the re-runs render (:func:`run_config`); a row made on another device (its
     provenance's ``device``, "cpu" when absent), or any re-run on a GPU, is never exact."""
     rows = [r for r in rows if r.get("status") == "ok"]
@@ -555,15 +661,23 @@ def verify_rows(rows, *, sample: int | None = None, seed: int = 0, tolerance: fl
         exact = same and stored_simd == simd and same_device and device == "cpu"
         tol = (0.0 if exact else drift_tolerance(r)) if tolerance is None else float(tolerance)
         a, b = r.get("metric"), now.get("metric")
-        drift = abs(a - b) if (a is not None and b is not None) else (0.0 if a is None and b is None else math.inf)
+        failed = now.get("status") == "error"
+        if failed:  # no new metric to compare: the re-run's error, not a drift
+            drift, ok = None, False
+        elif a is not None and b is not None:
+            drift = abs(a - b)
+            ok = drift <= tol
+        else:  # both non-finite (null): the same; one of them: beyond any tolerance (None: valid JSON)
+            drift = 0.0 if a is None and b is None else None
+            ok = drift is not None
         v = {"key": r["key"], "label": r.get("label"), "stored": a, "now": b, "drift": drift, "tolerance": tol}
-        ok = drift <= tol
         ra, rb = r.get("residual_deg_median"), now.get("residual_deg_median")
-        if ra is not None and rb is not None:  # (a failure rate of 1 moves with no regression)
+        if ra is not None and rb is not None and not failed:  # (a failure rate of 1 moves with no regression)
             v["residual_drift"] = abs(ra - rb)
             v["residual_tolerance"] = 0.0 if exact else DRIFT_TOLERANCE["pose_residual"]
             ok = ok and v["residual_drift"] <= v["residual_tolerance"]
-        out.append({**v, "ok": ok, "same_code": same,
+        status = f"error: {now.get('error')}" if failed else "ok" if ok else "drift"
+        out.append({**v, "ok": ok, "status": status, "same_code": same,
                     "stored_code": r.get("code_hash"), "code": now["code_hash"], "same_cpu": stored_simd == simd,
                     "stored_simd": stored_simd, "simd": simd, "same_device": same_device,
                     "seconds": now["seconds"]})

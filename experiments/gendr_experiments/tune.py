@@ -187,8 +187,8 @@ def tune(target: str, *, budget: float, store="tune.jsonl", protocol: str = "qui
     :class:`~gendr.errors.InputValueError` / :class:`~gendr.errors.ShapeError` (target) before running.
     """
     from .cost import run_features
-    from .sweep import (INSTANCE_KEYS, ResultStore, check_base, execute, expand, fine_grid, full_config,
-                        summarize_best)
+    from .sweep import (INSTANCE_KEYS, ResultStore, check_base, check_fine_steps, execute, expand, fine_grid,
+                        full_config, summarize_best)
     t_start = time.monotonic()
     stream = stream if stream is not None else sys.stderr
     if isinstance(budget, bool) or not isinstance(budget, (int, float)) or not (math.isfinite(budget) and budget > 0):
@@ -196,6 +196,8 @@ def tune(target: str, *, budget: float, store="tune.jsonl", protocol: str = "qui
     taus, seeds = [float(t) for t in taus], list(seeds)
     if not taus or any(not (math.isfinite(t) and t > 0) for t in taus):
         raise ParameterError(f"tune taus={taus!r} must be a non-empty list of widths > 0")
+    # (a bad step failed only after the coarse stage)
+    fine_steps = check_fine_steps(fine_steps, taus, "tune fine_steps (CLI --fine-steps)")
     from .targets import is_images_target
     decided = {"target": "tune's target (CLI --target)", "protocol": "tune's protocol (CLI --protocol)",
                "tau": "tune's taus (CLI --taus)", "lr": "tune's lrs (CLI --lrs)", "seed": "tune's seeds (CLI --seeds)",
@@ -265,6 +267,18 @@ def tune(target: str, *, budget: float, store="tune.jsonl", protocol: str = "qui
     def pending(configs, done):
         return [c for c in configs if _key(c) not in done]
 
+    def fine_of(i, b):  # the fine τ grid around instance i's best coarse setting b
+        return expand("shape", base, instances=[spec_of[i]],
+                      axes={"tau": fine_grid(b["tau"], fine_steps, taus), "lr": [b["lr"]], "seed": seeds})
+
+    def refined_in_store(best, done):
+        """The instances of ``best`` (the coarse ranking) whose fine grid the store holds complete,
+        whichever run made it: a resumed tune ranks the same rows as the run it resumes, whose
+        earlier rounds may have refined others than today's top."""
+        if not fine_steps:
+            return {}
+        return {i: cfgs for i, b in best.items() for cfgs in [fine_of(i, b)] if not pending(cfgs, done)}
+
     # 1. probe: the first candidate's coarse runs time this machine and problem
     run_stage(coarse[cands[0]], "probe (first candidate, coarse grid)", deadline)
     cal.fit(_rows_of(st, coarse[cands[0]]), feats, warm)
@@ -302,17 +316,16 @@ def tune(target: str, *, budget: float, store="tune.jsonl", protocol: str = "qui
         done = finished()
         tried = [i for i in cands if not pending(coarse[i], done)]
         all_coarse = [c for i in tried for c in coarse[i]]
-        cal.fit(_rows_of(st, all_coarse + [c for cfgs in refined.values() for c in cfgs]), feats, warm)
         best = summarize_best(_rows_of(st, all_coarse), "shape")
+        refined.update(refined_in_store(best, done))
+        cal.fit(_rows_of(st, all_coarse + [c for cfgs in refined.values() for c in cfgs]), feats, warm)
         order = sorted(best, key=lambda i: best[i]["score"])
         order = [i for i in order[:max(int(top), math.ceil(REFINE_SHARE * len(order)))] if i not in refined
                  ] if fine_steps else []  # (no fine steps: the coarse grid only)
         left = deadline - time.monotonic()
         fine, picked = [], {}
         for i in order:
-            b = best[i]
-            cfgs = expand("shape", base, instances=[spec_of[i]],
-                          axes={"tau": fine_grid(b["tau"], fine_steps, taus), "lr": [b["lr"]], "seed": seeds})
+            cfgs = fine_of(i, best[i])
             missing = pending(cfgs, done)
             if left > 0 and fits(fine + missing, left):
                 fine += missing
@@ -330,6 +343,9 @@ def tune(target: str, *, budget: float, store="tune.jsonl", protocol: str = "qui
         raise ParameterError(f"tune: no candidate's coarse grid ({len(coarse[cands[0]])} runs) finished within "
                              f"budget={budget!r} s; raise --budget (finished runs resume)")
     skipped = [i for i in cands if i not in tried]
+    # the ranking counts every complete fine grid in the store: the same rows however many rounds or runs made them
+    coarse_best = summarize_best(_rows_of(st, [c for i in tried for c in coarse[i]]), "shape")
+    refined.update(refined_in_store(coarse_best, done))
     if skipped:
         say(f"{len(skipped)} of {len(cands)} candidates not tried: raise --budget to try them (resumes)")
     mine = [c for i in tried for c in coarse[i]] + [c for cfgs in refined.values() for c in cfgs]
