@@ -12,20 +12,28 @@ few loops. Two chains are compiled per (distribution, T-conorm, eps, polygon siz
 Everything else (plans, index_add, the per-pixel T-conorm) stays eager. Blocks the fused chains do
 not cover run eagerly, with identical formulas: a block with a saturated pair (g infinite: the
 eager path's masks handle it), learnable T-conorm / distribution parameters, max-type T-conorms,
-RGB blends. If compilation fails (no C++ compiler, an unsupported formula) a ``RuntimeWarning``
-says why and this process renders eagerly from then on. Results equal eager up to float rounding
-(the compiler may contract multiply-adds), see docs/performance.md.
+RGB blends; and distributions whose F reaches 1 (a finite upper end of the support: uniform,
+reversed one-sided, ...) aggregated other than by the mean are not compiled at all: nearly all
+their blocks have a saturated pair. If compiling an instance fails (no C++ compiler, a formula
+Dynamo or Inductor rejects) a ``RuntimeWarning`` says why and that instance renders eagerly from
+then on; other errors propagate. Results equal eager up to float rounding (the compiler may
+contract multiply-adds), see docs/performance.md.
 """
 from __future__ import annotations
 
+import math
+import types
 import warnings
 
 import torch
 
+from gendr.tconorms import MEAN
+
 from .ops import torch_ops as ops
 
 _COMPILED = {}  # key -> (forward, backward) compiled callables
-_BROKEN = []  # the reason compilation failed in this process (then everything runs eager)
+_FAILED = {}  # key -> why compiling it failed (that instance renders eagerly)
+_OVER_LIMIT = set()  # keys that hit Dynamo's recompile limit (warned once each)
 
 
 def generator_chain(dist, tcn, eps, K):
@@ -59,30 +67,68 @@ def gradient_chain(dist, tcn, eps, K):
     return backward
 
 
+def _own_code(fn):
+    """``fn`` with a code object of its own. Dynamo keeps compiled variants per code object and
+    counts them against ``torch._dynamo.config.recompile_limit`` (8); the closures of one ``def``
+    share it, so with ``fullgraph=True`` the 9th instance in a process failed. One code object per
+    key keeps each instance's variants (dtype, cutoff) apart, on any torch (``torch.compile``'s
+    ``isolate_recompiles`` is recent and still caps the entries of all its regions together)."""
+    return types.FunctionType(fn.__code__.replace(), fn.__globals__, fn.__name__, fn.__defaults__,
+                              fn.__closure__)
+
+
+def _errors():
+    """(Dynamo's recompile limit hit, the errors that mean "this could not be compiled": no or a
+    broken C++ compiler, a formula Dynamo or Inductor rejects). Anything else, e.g. running out of
+    memory in the compiled code, propagates as it would eagerly."""
+    from torch._dynamo import exc
+    from torch._inductor.exc import CppCompileError, InvalidCxxCompiler
+    limit = getattr(exc, "FailOnRecompileLimitHit", ())  # (absent from old torch)
+    return limit, (exc.TorchDynamoException, InvalidCxxCompiler, CppCompileError)
+
+
+def _saturates(dist, tcn):
+    """F reaches 1 (a finite upper end of the support: uniform, heaviside, reversed one-sided ...)
+    and the aggregation is not the mean: p = 1 (log(1 − p) infinite) is a saturated pair, so the
+    blocks inside faces rerun eagerly and compiling would cost the compile and a wasted fused pass
+    per block for nothing."""
+    return tcn.kind != MEAN and dist.support()[1] < math.inf
+
+
 class FusedChains:
     """The compiled chains of one renderer instance, or eager fallbacks (``None`` results)."""
 
     def __init__(self, dist, tcn, eps, K, device_type):
         self.key = (dist, tcn, float(eps), int(K), device_type)
-        self.ok = not (_BROKEN or dist.learnable or tcn.learnable or not tcn.streams)
+        self.ok = not (dist.learnable or tcn.learnable or not tcn.streams or _saturates(dist, tcn))
         self._unsaturated = set()  # ids of the blocks whose forward ran fused (no pair saturated)
+
+    def _label(self):
+        return f"{self.key[0].label()} + {self.key[1].label()}"
 
     def _chains(self):
         if self.key not in _COMPILED:
             dist, tcn, eps, K, _ = self.key
-            _COMPILED[self.key] = tuple(torch.compile(f(dist, tcn, eps, K), dynamic=True, fullgraph=True)
+            _COMPILED[self.key] = tuple(torch.compile(_own_code(f(dist, tcn, eps, K)), dynamic=True, fullgraph=True)
                                         for f in (generator_chain, gradient_chain))
         return _COMPILED[self.key]
 
     def _call(self, which, *args):
-        if not self.ok or _BROKEN:
+        if not self.ok or self.key in _FAILED:
             return None
         try:
             return self._chains()[which](*args)
-        except Exception as e:  # compiler missing or a formula the compiler rejects: render eagerly
-            _BROKEN.append(f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}")
-            warnings.warn(f"gendr torch backend: compile=True failed ({_BROKEN[0]}); rendering eagerly "
-                          "in this process", RuntimeWarning, stacklevel=4)
+        except _errors()[0]:  # a new variant of this instance: the compiled ones still run fused
+            if self.key not in _OVER_LIMIT:
+                _OVER_LIMIT.add(self.key)
+                warnings.warn(f"gendr torch backend: compile=True: {self._label()} reached "
+                              f"torch._dynamo.config.recompile_limit ({torch._dynamo.config.recompile_limit}); "
+                              "its further variants (dtype, cutoff) render eagerly", RuntimeWarning, stacklevel=4)
+            return None
+        except _errors()[1] as e:
+            _FAILED[self.key] = f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}"
+            warnings.warn(f"gendr torch backend: compile=True failed for {self._label()} ({_FAILED[self.key]}); "
+                          "rendering it eagerly", RuntimeWarning, stacklevel=4)
             return None
 
     def forward(self, geom, blk, tau, x_cut):
@@ -104,5 +150,6 @@ class FusedChains:
 
 
 def compile_status():
-    """None while compilation works in this process, else why it failed (renders run eagerly)."""
-    return _BROKEN[0] if _BROKEN else None
+    """None while no compilation failed in this process, else why the first failed (the instances
+    that failed render eagerly, the others fused)."""
+    return next(iter(_FAILED.values()), None)

@@ -640,7 +640,8 @@ class SoftAlpha(torch.autograd.Function):
         if tcn.streams:  # archimedean T-conorms and the mean: a scatter-added sum per pixel
             nsat = torch.zeros(B * H * Wc, dtype=torch.int32, device=X.device)
             for blk in plan.chunks():
-                g = plan.fused.forward(geom, blk, tau, x_cut) if plan.fused else None
+                # detached as in the backward: τ's requires_grad would be another compiled variant
+                g = plan.fused.forward(geom, blk, tau.detach(), x_cut) if plan.fused else None
                 if g is not None:
                     sat = None
                 else:
