@@ -25,6 +25,10 @@ class _WithDerivative(torch.autograd.Function):
             return grad * ctx.derivative(x), None, None
 
 
+def _sigmoid_slope(x):
+    return torch.sigmoid(x) * torch.sigmoid(-x)
+
+
 class _PowerOfPositive(torch.autograd.Function):
     """x**e for x > 0, its x-slope taken as ((g·y)·e)/x: 0 where the incoming g is 0, where
     pow's own backward, g·(e·x^(e−1)), gives 0·inf = NaN once the slope overflows (e < 1, tiny x)."""
@@ -64,12 +68,13 @@ class TorchOps:
     abs = staticmethod(torch.abs)
 
     # torch.sigmoid's backward s·(1 − s) loses F's tail: relative error 1e-3 at x = 30 (float64),
-    # 0 from x = 37. exp(logsigmoid) differentiates exactly, F' = F·σ(−x), at F 5 ulp off at x = −30:
-    # used only when a gradient is taped (+5 % on a 256² logistic render otherwise).
+    # 0 from x = 37. The slope is taken as σ(x)·σ(−x) instead; the value stays torch.sigmoid's, so an
+    # image does not depend on whether a gradient is taped (exp(logsigmoid) is subnormal where
+    # torch.sigmoid is 0: the softmax blend then weighed faces that the forward alone left out).
     @staticmethod
     def sigmoid(x):
         if torch.is_grad_enabled() and x.requires_grad:
-            return torch.exp(torch.nn.functional.logsigmoid(x))
+            return _WithDerivative.apply(x, torch.sigmoid, _sigmoid_slope)
         return torch.sigmoid(x)
 
     # the default threshold 20 returns x beyond it, 2e-9 off; log1p(e^-40) is below x's ulp at 40
