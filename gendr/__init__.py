@@ -15,10 +15,21 @@ from .grid import Instance, paper_grid
 from .gbuffer import GBuffer
 
 #: the public API (``from gendr import *``); submodules such as :mod:`gendr.scenes` and
-#: :mod:`gendr.ops` are imported by name
+#: :mod:`gendr.ops` load on first use (``gendr.scenes``), see the end of this file
 __all__ = ["Renderer", "RenderSettings", "available_backends",
            "distribution", "Distribution", "DISTRIBUTIONS", "tconorm", "TConorm", "TCONORMS",
            "Camera", "PerspectiveCamera", "OrthographicCamera", "IntrinsicsCamera", "Orbit", "orbit_camera",
            "Instance", "paper_grid", "GBuffer",
            "GendrError", "UnknownNameError", "ParameterError", "ShapeError", "DTypeError", "InputValueError",
            "BackendUnavailableError", "DegenerateCameraError"]
+
+#: submodules loaded on first use (``gendr.scenes.icosphere(2)`` after ``import gendr``), so that
+#: ``import gendr`` stays light: interop's converters import torch only when called, images Pillow
+_LAZY_SUBMODULES = ("scenes", "images", "interop", "textures", "ops", "cli")
+
+
+def __getattr__(name):
+    if name in _LAZY_SUBMODULES:
+        import importlib
+        return importlib.import_module(f"{__name__}.{name}")
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -16,7 +16,6 @@ gendr_experiments): see :func:`plugin_commands`. gendr imports a plug-in only to
 from __future__ import annotations
 
 import argparse
-import difflib
 import json
 import math
 import os
@@ -29,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import GendrError, InputValueError, ParameterError, UnknownNameError
+from .errors import GendrError, InputValueError, ParameterError
 
 __all__ = ["main", "build_parser", "plugin_commands", "DEMO_INSTANCES", "COMMAND_GROUP"]
 
@@ -266,7 +265,9 @@ def cmd_demo(args) -> int:
     require_pillow("gendr demo")
     writable_dir(args.output)
     distribution, tconorm, Renderer = _api("distribution"), _api("tconorm"), _api("Renderer")
-    scenes = list(SCENES) if not args.scenes else [s.strip() for s in args.scenes.split(",") if s.strip()]
+    scenes = list(SCENES) if args.scenes is None else [s.strip() for s in args.scenes.split(",") if s.strip()]
+    if not scenes:  # (--scenes "$EMPTY" rendered every scene)
+        raise ParameterError(f"--scenes {args.scenes!r} names no scene; leave it out for all of them")
     meshes = [get_scene(s) for s in scenes]  # validates names before any rendering
     h, w = args.size
     tau = args.tau
@@ -644,10 +645,6 @@ def main(argv=None) -> int:
         return args.func(args)
     except GendrError as e:
         message = _one_line(e)
-        if isinstance(e, UnknownNameError) and isinstance(e.name, str):
-            close = difflib.get_close_matches(e.name, [str(v) for v in e.valid], n=1)
-            if close:
-                message += f" (did you mean {close[0]!r}?)"
         print(f"{PROG}: error: {message}", file=sys.stderr)
         return 2
     except BrokenPipeError:  # e.g. `gendr list grid | head`: stop quietly, as command-line tools do

@@ -3,6 +3,7 @@
 Each error also derives from the built-in exception a caller would catch without knowing gendr
 (``ValueError``, ``TypeError`` or ``ImportError``), so ``except ValueError`` keeps working.
 """
+import difflib
 
 
 class GendrError(Exception):
@@ -31,9 +32,13 @@ class UnknownNameError(GendrError, ValueError):
     tconorm maximum True True
     """
 
-    def __init__(self, kind: str, name, valid):
+    def __init__(self, kind: str, name, valid, hint: str = ""):
         self.kind, self.name, self.valid = kind, name, tuple(valid)
-        super().__init__(f"unknown {kind} {name!r}; valid {kind} names: {', '.join(self.valid)}")
+        close = difflib.get_close_matches(name, [str(v) for v in self.valid], n=1) if isinstance(name, str) else []
+        if close and not hint:
+            hint = f"did you mean {close[0]!r}?"
+        super().__init__(f"unknown {kind} {name!r}" + (f" ({hint})" if hint else "")
+                         + f"; valid {kind} names: {', '.join(self.valid)}")
 
 
 class ParameterError(GendrError, ValueError):

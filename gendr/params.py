@@ -197,9 +197,13 @@ def validate_params(owner: str, declared: tuple[Param, ...], given: Mapping[str,
 class Registry(dict):
     """Name -> entry, raising :class:`UnknownNameError` listing the valid names."""
 
+    #: every registry, so that a name of one given for another says so (arguments swapped)
+    _all: list = []
+
     def __init__(self, kind: str):
         super().__init__()
         self.kind = kind
+        Registry._all.append(self)
 
     def add(self, entry):
         if entry.name in self:
@@ -209,5 +213,6 @@ class Registry(dict):
 
     def lookup(self, name):
         if not isinstance(name, str) or name not in self:
-            raise UnknownNameError(self.kind, name, sorted(self))
+            other = [r.kind for r in Registry._all if r is not self and isinstance(name, str) and name in r]
+            raise UnknownNameError(self.kind, name, sorted(self), f"{name!r} is a {other[0]}" if other else "")
         return self[name]

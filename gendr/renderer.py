@@ -305,7 +305,9 @@ class Renderer:
         every render (ParameterError naming it when an optimizer step left the domain).
     tau : float > 0 or 0-d tensor
         scale of the distribution, in screen units (1 unit = H/2 pixels; for ``squared``
-        distributions in squared units). A tensor that requires grad gets a gradient.
+        distributions in squared units, √τ the length: the default 0.01 is then a scale of 0.1,
+        ten times the plain default's; ``gendr render --squared`` uses 1e-4, SoftRas' σ). A tensor
+        that requires grad gets a gradient.
     image_size : (H, W) or int
     backend : str
         a registered backend (``gendr.available_backends()``), default ``"torch"``.

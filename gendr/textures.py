@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import InputValueError, ParameterError, ShapeError, require_finite
+from .errors import DTypeError, InputValueError, ParameterError, ShapeError, require_finite
 
 FILTERS = ("bilinear", "nearest")
 WRAPS = ("repeat", "clamp")
@@ -94,8 +94,10 @@ def check_textured_inputs(be, verts, faces_a, texture, uvs, uv_faces):
     [F, 3] integer indices in [0, T) (default: ``faces``, then T must equal V)."""
     if uvs is None:
         raise ParameterError("a texture needs uvs ([T, 2] or [B, T, 2] texture coordinates)")
-    # dtype first: textures are float albedo (integer images: divide by 255 first)
-    be.float_array(texture, "texture")
+    try:  # dtype first: textures are float albedo
+        be.float_array(texture, "texture")
+    except DTypeError as e:
+        raise DTypeError(f"{e}: textures are float albedo in [0, 1] (an 8-bit image: divide by 255)") from None
     tex = be.float_array(texture, "texture", like=verts)
     if len(tex.shape) not in (3, 4) or tex.shape[-1] not in (3, 4) or tex.shape[-2] < 1 or tex.shape[-3] < 1:
         raise ShapeError(f"texture must have shape [Ht, Wt, 3|4] or [B, Ht, Wt, 3|4], got {list(tex.shape)}")

@@ -378,3 +378,10 @@ def test_list_scenes_shows_first_sentences_not_doctests(capsys):
     assert code == 0 and ">>>" not in out
     torus = next(line for line in out.splitlines() if line.strip().startswith("torus"))
     assert torus.rstrip().endswith("tube radius r")
+
+
+def test_demo_with_an_empty_scene_list_is_an_error(tmp_path, capsys):
+    """(--scenes "$EMPTY" rendered every scene: 209 s)"""
+    code, _, err = _run(capsys, "demo", "--size", "8", "--scenes", " , ", "-o", str(tmp_path / "d"))
+    assert code == 2 and "names no scene" in err
+    assert not (tmp_path / "d").exists()

@@ -200,3 +200,15 @@ def test_the_committed_gallery_regenerates_pixel_for_pixel(tmp_path):
     for p in committed:
         np.testing.assert_array_equal(np.asarray(Image.open(tmp_path / p.name)), np.asarray(Image.open(p)),
                                       err_msg=p.name)
+
+
+def test_submodules_load_on_first_use_without_a_backend():
+    """docs/conventions.md's `gendr.interop.from_pytorch3d_look_at(...)` after `import gendr` raised
+    AttributeError (as did gendr.scenes and gendr.images, listed as public API in docs/index.md)."""
+    out = _run_python("import sys, gendr; cam = gendr.interop.from_pytorch3d_look_at(2.7, 20, 30, fov=60, "
+                      "image_size=(8, 8)); m = gendr.scenes.icosphere(1); gendr.images; "
+                      "print(type(cam).__name__, m.faces.shape[0], 'torch' in sys.modules, 'drjit' in sys.modules)")
+    assert out.split() == ["PerspectiveCamera", "80", "False", "False"], out
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        import gendr
+        gendr.nope

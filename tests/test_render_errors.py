@@ -528,3 +528,14 @@ def test_a_learnable_parameter_float32_cannot_hold_is_an_error(backend):
         p.fill_(1e-39)
     with pytest.raises(ParameterError, match=re.escape("tconorm 'frank' parameter p=1e-39 is beyond what float32")):
         r.render(V.float(), F, CAM)
+
+
+def test_unknown_names_suggest_the_close_one_or_the_other_registry():
+    """The "did you mean" was the CLI's only; arguments swapped (a T-conorm given as the
+    distribution) said only 'unknown distribution'."""
+    with pytest.raises(gendr.UnknownNameError, match=r"'gausian' \(did you mean 'gaussian'\?\)"):
+        gendr.Renderer(distribution="gausian")
+    with pytest.raises(gendr.UnknownNameError, match=r"unknown distribution 'probabilistic' \('probabilistic' is a tconorm\)"):
+        gendr.Renderer("probabilistic", "logistic")
+    with pytest.raises(gendr.UnknownNameError, match=r"unknown tconorm 'logistic' \('logistic' is a distribution\)"):
+        gendr.tconorm("logistic")

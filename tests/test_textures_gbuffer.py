@@ -128,7 +128,7 @@ def test_texture_input_errors(backend):
 
     with pytest.raises(gendr.ShapeError, match=r"texture must have shape \[Ht, Wt, 3\|4\]"):
         call(texture=m.texture[..., :2])
-    with pytest.raises(gendr.DTypeError, match="texture must be float32 or float64"):
+    with pytest.raises(gendr.DTypeError, match="texture must be float32 or float64.*an 8-bit image: divide by 255"):
         call(texture=(m.texture * 255).astype(np.uint8))
     with pytest.raises(gendr.InputValueError, match=r"uv_faces indices must lie in \[0, 23\].*\[0, 24\]"):
         bad = m.uv_faces.copy()
