@@ -80,6 +80,8 @@ def test_check_config_names_the_setting(key, value):
 @pytest.mark.parametrize("argv,words", [
     (["verify", "{missing}"], "does not exist"),
     (["verify", "{dir}"], "is a directory"),
+    # (a mistyped scene read as 'mesh file does not exist', with no word of the built-in scenes)
+    (["shape", "--target", "teapot"], "neither a built-in scene (airplane, chair"),
     (["findings", "{notrow}"], "line 1 is not a result row"),
     (["verify", "{rows}", "--sample", "0"], "--sample must be >= 1"),
     (["verify", "{rows}", "--tolerance", "-1"], "--tolerance must be >= 0"),

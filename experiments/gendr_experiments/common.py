@@ -185,7 +185,12 @@ def load_target_mesh(name_or_path: str, normalize: bool = True):
     from gendr import scenes
     if name_or_path in scenes.SCENES:
         return scenes.get_scene(name_or_path)
-    mesh = scenes.merge_vertices(scenes.load_mesh(resolve_data_path(name_or_path)))
+    path = resolve_data_path(name_or_path)
+    if not path.exists() and not path.suffix:
+        # (a mistyped scene name read as a missing mesh file)
+        raise InputValueError(f"target {name_or_path!r} is neither a built-in scene ({', '.join(sorted(scenes.SCENES))}) "
+                              f"nor an existing mesh file")
+    mesh = scenes.merge_vertices(scenes.load_mesh(path))
     return scenes.normalize(mesh) if normalize else mesh
 
 
