@@ -139,6 +139,9 @@ def _camera(args, batch_azimuths=None):
     """An orbit camera from the command-line options (azimuth may be a list of B values)."""
     orbit_camera = _api("orbit_camera")
     az = args.azimuth if batch_azimuths is None else np.asarray(batch_azimuths, dtype=np.float64)
+    if not abs(args.elevation) < 90.0:  # (the camera's message suggests an up vector: no option here)
+        raise ParameterError(f"--elevation {args.elevation:g}: must lie strictly between -90 and 90 (at ±90 "
+                             f"the view is along the up axis +Y and the camera's roll is undefined)")
     h, w = args.size
     if args.camera == "orthographic":
         ymag = args.ortho_scale if args.ortho_scale is not None else 1.1

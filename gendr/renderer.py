@@ -566,7 +566,9 @@ class Renderer:
         if faces_a.shape[0] > 0:
             lo, hi = be.index_range(faces_a)
             if lo < 0 or hi >= V:
-                raise InputValueError(f"face indices must lie in [0, {V - 1}] (V = {V}), got range [{lo}, {hi}]")
+                one_based = " (1-based, as in OBJ files? subtract 1)" if (lo, hi) == (1, V) else ""
+                raise InputValueError(f"face indices must lie in [0, {V - 1}] (V = {V}), got range [{lo}, {hi}]"
+                                      + one_based)
         return verts, faces_a
 
     def to_numpy(self, image):

@@ -385,3 +385,9 @@ def test_demo_with_an_empty_scene_list_is_an_error(tmp_path, capsys):
     code, _, err = _run(capsys, "demo", "--size", "8", "--scenes", " , ", "-o", str(tmp_path / "d"))
     assert code == 2 and "names no scene" in err
     assert not (tmp_path / "d").exists()
+
+
+def test_render_at_a_pole_names_the_elevation_option(tmp_path, capsys):
+    """(the camera's message told the user to choose an up vector, which the CLI has no option for)"""
+    code, _, err = _run(capsys, "render", "icosphere", "--size", "8", "--elevation", "90", "-o", str(tmp_path / "a.png"))
+    assert code == 2 and "--elevation 90: must lie strictly between -90 and 90" in err and "up vector" not in err

@@ -539,3 +539,9 @@ def test_unknown_names_suggest_the_close_one_or_the_other_registry():
         gendr.Renderer("probabilistic", "logistic")
     with pytest.raises(gendr.UnknownNameError, match=r"unknown tconorm 'logistic' \('logistic' is a distribution\)"):
         gendr.tconorm("logistic")
+
+
+def test_one_based_faces_get_a_hint():
+    """(faces read 1-based, as OBJ files store them: the range was named, its likely cause not)"""
+    with pytest.raises(InputValueError, match=r"got range \[1, 4\] \(1-based, as in OBJ files\? subtract 1\)"):
+        renderer().render(V, F + 1, CAM)  # (F spans [0, 3], V = 4)
