@@ -189,7 +189,7 @@ def image_size_pair(image_size, owner: str) -> tuple[int, int]:
 def _check_params_fit(settings, dtype: str, tau_value: float) -> None:
     """ParameterError for τ or a distribution or T-conorm parameter (a number) that a float32 render
     cannot hold: beyond float32's range or below its smallest normal number in magnitude (frank
-    p = 1e40 rendered alpha −inf, p = 1e-39 +inf; gamma shape = 1e300 raised torch's overflow;
+    p = 1e40 rendered alpha −inf, p = 1e-39 +inf; gamma shape = 1e-40 is a subnormal float32;
     τ = 1e-39 gave gamma NaN gradients)."""
     if dtype != "float32":
         return

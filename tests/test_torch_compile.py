@@ -134,6 +134,19 @@ def test_failed_compilation_warns_and_renders_eagerly(monkeypatch):
     _assert_same(out, _render_and_grads(False))
 
 
+def test_torch_compile_refusing_warns_and_renders_eagerly(monkeypatch):
+    """torch 2.13's torch.compile() raises a plain RuntimeError where it is unsupported (Python
+    3.15+, free-threaded 3.13.0-2): that rendered eagerly with a warning until e6c1215, then raised."""
+    _fresh_state(monkeypatch)
+
+    def refuse(fn, **kw):
+        raise RuntimeError("torch.compile is not supported on Python 3.15+")
+    monkeypatch.setattr(torch, "compile", refuse)
+    with pytest.warns(RuntimeWarning, match="compile=True failed for logistic [+] probabilistic .*Python 3.15"):
+        out = _render_and_grads(True)
+    _assert_same(out, _render_and_grads(False))
+
+
 def test_errors_other_than_compilation_propagate(monkeypatch):
     # e.g. out of memory on the first call is no reason to render eagerly (nor a compile failure)
     _fresh_state(monkeypatch)

@@ -113,11 +113,21 @@ class FusedChains:
                                         for f in (generator_chain, gradient_chain))
         return _COMPILED[self.key]
 
+    def _fail(self, e):
+        _FAILED[self.key] = f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}"
+        warnings.warn(f"gendr torch backend: compile=True failed for {self._label()} ({_FAILED[self.key]}); "
+                      "rendering it eagerly", RuntimeWarning, stacklevel=5)
+
     def _call(self, which, *args):
         if not self.ok or self.key in _FAILED:
             return None
         try:
-            return self._chains()[which](*args)
+            chains = self._chains()
+        except RuntimeError as e:  # torch.compile itself refuses (e.g. torch 2.13 on Python 3.15+)
+            self._fail(e)
+            return None
+        try:
+            return chains[which](*args)
         except _errors()[0]:  # a new variant of this instance: the compiled ones still run fused
             if self.key not in _OVER_LIMIT:
                 _OVER_LIMIT.add(self.key)
@@ -126,9 +136,7 @@ class FusedChains:
                               "its further variants (dtype, cutoff) render eagerly", RuntimeWarning, stacklevel=4)
             return None
         except _errors()[1] as e:
-            _FAILED[self.key] = f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}"
-            warnings.warn(f"gendr torch backend: compile=True failed for {self._label()} ({_FAILED[self.key]}); "
-                          "rendering it eagerly", RuntimeWarning, stacklevel=4)
+            self._fail(e)
             return None
 
     def forward(self, geom, blk, tau, x_cut):
