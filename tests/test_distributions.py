@@ -712,3 +712,16 @@ def test_backend_slopes_are_the_density_in_the_tails(backend, d):
     fin = np.isfinite(ref_log_sf)
     np.testing.assert_allclose(log_sf[fin], ref_log_sf[fin], rtol=1e-12, atol=1e-300)
     assert np.array_equal(np.isfinite(log_sf), fin), d.label()
+
+
+@pytest.mark.parametrize("d", [d for d in CASES if d.name == "logistic"], ids=ids)
+def test_torch_forward_mode_slope_of_the_logistic_tail(d):
+    """compile=True's gradient chain takes ∂g/∂x by torch.func.jvp, where torch.sigmoid's forward-mode
+    slope is s·(1 − s) again (1e-3 off at x = 31.6, 0 from 38): the ops' sigmoid gives σ(x)·σ(−x) there too."""
+    torch = pytest.importorskip("torch")
+    from gendr_torch.ops import torch_ops
+    x = torch.tensor(TAIL_X, dtype=torch.float64)
+    _, dF = torch.func.jvp(lambda v: d.cdf(torch_ops, v), (x,), (torch.ones_like(x),))
+    f = d.pdf(O, TAIL_X)
+    normal = f > np.finfo(np.float64).tiny
+    np.testing.assert_allclose(dF.numpy()[normal], f[normal], rtol=1e-12, atol=0)

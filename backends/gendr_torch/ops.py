@@ -29,6 +29,31 @@ def _sigmoid_slope(x):
     return torch.sigmoid(x) * torch.sigmoid(-x)
 
 
+class _Sigmoid(torch.autograd.Function):
+    """torch.sigmoid with the slope σ(x)·σ(−x) in reverse mode and in forward mode (torch.func.jvp:
+    compile=True's gradient chain), where torch's own s·(1 − s) cancels in the far tail."""
+
+    @staticmethod
+    def forward(x):
+        return torch.sigmoid(x)
+
+    @staticmethod
+    def setup_context(ctx, inputs, output):
+        (x,) = inputs
+        ctx.save_for_backward(x)
+        ctx.save_for_forward(x)
+
+    @staticmethod
+    def backward(ctx, g):
+        (x,) = ctx.saved_tensors
+        return g * _sigmoid_slope(x)
+
+    @staticmethod
+    def jvp(ctx, x_t):
+        (x,) = ctx.saved_tensors
+        return x_t * _sigmoid_slope(x)
+
+
 class _PowerOfPositive(torch.autograd.Function):
     """x**e for x > 0, its x-slope taken as ((g·y)·e)/x: 0 where the incoming g is 0, where
     pow's own backward, g·(e·x^(e−1)), gives 0·inf = NaN once the slope overflows (e < 1, tiny x)."""
@@ -73,9 +98,7 @@ class TorchOps:
     # torch.sigmoid is 0: the softmax blend then weighed faces that the forward alone left out).
     @staticmethod
     def sigmoid(x):
-        if torch.is_grad_enabled() and x.requires_grad:
-            return _WithDerivative.apply(x, torch.sigmoid, _sigmoid_slope)
-        return torch.sigmoid(x)
+        return _Sigmoid.apply(x)
 
     # the default threshold 20 returns x beyond it, 2e-9 off; log1p(e^-40) is below x's ulp at 40
     @staticmethod
