@@ -135,19 +135,36 @@ def _vertex_colors(mesh, mode: str):
     raise ParameterError(f"unknown colour mode {mode!r}")
 
 
+DEFAULT_FOV, DEFAULT_ORTHO_SCALE = 40.0, 1.1
+
+
+def _fov(args):
+    return DEFAULT_FOV if args.fov is None else args.fov
+
+
+def _ortho_scale(args):
+    return DEFAULT_ORTHO_SCALE if args.ortho_scale is None else args.ortho_scale
+
+
 def _camera(args, batch_azimuths=None):
     """An orbit camera from the command-line options (azimuth may be a list of B values)."""
     orbit_camera = _api("orbit_camera")
     az = args.azimuth if batch_azimuths is None else np.asarray(batch_azimuths, dtype=np.float64)
+    # (each was ignored silently by the other camera)
+    if args.camera == "orthographic" and args.fov is not None:
+        raise ParameterError(f"--fov {args.fov:g} is for --camera perspective; the orthographic camera's "
+                             f"view size is --ortho-scale")
+    if args.camera == "perspective" and args.ortho_scale is not None:
+        raise ParameterError(f"--ortho-scale {args.ortho_scale:g} is for --camera orthographic; the perspective "
+                             f"camera's view size is --fov")
     if not abs(args.elevation) < 90.0:  # (the camera's message suggests an up vector: no option here)
         raise ParameterError(f"--elevation {args.elevation:g}: must lie strictly between -90 and 90 (at ±90 "
                              f"the view is along the up axis +Y and the camera's roll is undefined)")
     h, w = args.size
     if args.camera == "orthographic":
-        ymag = args.ortho_scale if args.ortho_scale is not None else 1.1
-        return orbit_camera(az, args.elevation, args.distance, fov_y=args.fov, orthographic=True,
-                            ymag=ymag, xmag=ymag * w / h)
-    return orbit_camera(az, args.elevation, args.distance, fov_y=args.fov)
+        ymag = _ortho_scale(args)
+        return orbit_camera(az, args.elevation, args.distance, orthographic=True, ymag=ymag, xmag=ymag * w / h)
+    return orbit_camera(az, args.elevation, args.distance, fov_y=_fov(args))
 
 
 def _finish_image(img) -> np.ndarray:
@@ -322,7 +339,8 @@ def cmd_demo(args) -> int:
         "columns": [dict(column=c, **col) for c, col in enumerate(columns)],
         "cells": cells,
         "camera": {"kind": args.camera, "azimuth": args.azimuth, "elevation": args.elevation,
-                   "distance": args.distance, "fov_y": args.fov},
+                   "distance": args.distance, **({"fov_y": _fov(args)} if args.camera == "perspective" else
+                                                {"ymag": _ortho_scale(args)})},
         "backend": args.backend,
         "eps": args.eps,
         "render_seconds": round(elapsed, 3),
@@ -422,9 +440,10 @@ def _add_view_options(p, *, size_default: str):
                    help="degrees around +Y; 0 looks from +Z, 90 from +X (default: %(default)s)")
     g.add_argument("--elevation", type=float, default=20.0, help="degrees above the XZ plane (default: %(default)s)")
     g.add_argument("--distance", type=float, default=3.0, help="camera distance from the origin (default: %(default)s)")
-    g.add_argument("--fov", type=float, default=40.0, help="vertical field of view in degrees, perspective only (default: %(default)s)")
+    g.add_argument("--fov", type=float, default=None,
+                   help=f"vertical field of view in degrees, perspective only (default {DEFAULT_FOV:g})")
     g.add_argument("--ortho-scale", type=float, default=None, metavar="YMAG",
-                   help="orthographic half height of the view in world units (default 1.1)")
+                   help=f"orthographic half height of the view in world units (default {DEFAULT_ORTHO_SCALE:g})")
     g = p.add_argument_group("backend")
     g.add_argument("--backend", default="torch", help="array backend, see `gendr list backends` (default: %(default)s)")
     g.add_argument("--device", default=None, help="backend device, e.g. cuda (default: the backend's)")

@@ -391,3 +391,12 @@ def test_render_at_a_pole_names_the_elevation_option(tmp_path, capsys):
     """(the camera's message told the user to choose an up vector, which the CLI has no option for)"""
     code, _, err = _run(capsys, "render", "icosphere", "--size", "8", "--elevation", "90", "-o", str(tmp_path / "a.png"))
     assert code == 2 and "--elevation 90: must lie strictly between -90 and 90" in err and "up vector" not in err
+
+
+@pytest.mark.parametrize("argv,words", [(["--camera", "orthographic", "--fov", "10"], "--fov 10 is for --camera perspective"),
+                                        (["--ortho-scale", "2"], "--ortho-scale 2 is for --camera orthographic")])
+def test_an_option_of_the_other_camera_is_an_error(tmp_path, capsys, argv, words):
+    """(each was ignored silently: exit 0 with another view than asked for)"""
+    code, _, err = _run(capsys, "render", "icosphere", "--size", "8", *argv, "-o", str(tmp_path / "a.png"))
+    assert code == 2 and words in err
+    assert not (tmp_path / "a.png").exists()
