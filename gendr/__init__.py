@@ -14,8 +14,7 @@ from .renderer import Renderer, RenderSettings, available_backends
 from .grid import Instance, paper_grid
 from .gbuffer import GBuffer
 
-#: the public API (``from gendr import *``); submodules such as :mod:`gendr.scenes` and
-#: :mod:`gendr.ops` load on first use (``gendr.scenes``), see the end of this file
+#: the public API (``from gendr import *``); submodules load on first use (the end of this file)
 __all__ = ["Renderer", "RenderSettings", "available_backends",
            "distribution", "Distribution", "DISTRIBUTIONS", "tconorm", "TConorm", "TCONORMS",
            "Camera", "PerspectiveCamera", "OrthographicCamera", "IntrinsicsCamera", "Orbit", "orbit_camera",

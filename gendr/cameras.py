@@ -184,8 +184,8 @@ class Camera:
             if _mixes_tensors(value):
                 raise ParameterError(f"{name} parameter {k}={value!r} mixes numbers and tensors: give one tensor "
                                      f"(e.g. torch.stack), which keeps its gradient")
-            if is_backend_array(value) and non_real_kind(value):  # (a cast would make True 1°)
-                raise ParameterError(f"{name} parameter {k} must be a real tensor, got {non_real_kind(value)}")
+            if is_backend_array(value) and (non_real := non_real_kind(value)):  # (a cast would make True 1°)
+                raise ParameterError(f"{name} parameter {k} must be a real tensor, got {non_real}")
             if not (_plain(value) or is_backend_array(value)):
                 raise ParameterError(f"{name} parameter {k}={value!r} must be a number, a sequence of numbers, "
                                      f"a float NumPy array or a torch/Dr.Jit tensor")

@@ -100,8 +100,8 @@ def array_value(owner: str, name: str, raw) -> float:
     """The float value of a scalar backend array ``raw`` (torch: detached; Dr.Jit: via NumPy).
 
     Raises :class:`ParameterError` when it is not a single real number."""
-    if non_real_kind(raw):
-        raise ParameterError(f"{owner} parameter {name} must be a real number, got a {non_real_kind(raw)} array")
+    if kind := non_real_kind(raw):
+        raise ParameterError(f"{owner} parameter {name} must be a real number, got a {kind} array")
     shape = tuple(getattr(raw, "shape", ()))
     if shape not in ((), (1,)):
         raise ParameterError(f"{owner} parameter {name} must be a scalar (0-d) array, got shape {list(shape)}")

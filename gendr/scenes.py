@@ -493,8 +493,9 @@ def _call_scene(make, kind, name, kwargs):
 
 
 def _trimesh_load(path):
-    """``(path as str, trimesh.Trimesh)`` of a mesh file, scenes concatenated, as stored (no
-    processing); typed errors naming the path (missing, not a file, unreadable, no trimesh)."""
+    """``(path as str, trimesh.Trimesh, material file names)`` of a mesh file, scenes concatenated, as
+    stored (no processing); the names are those an OBJ's ``mtllib`` lines give (:func:`_scan_obj`;
+    none for other formats). Typed errors naming the path (missing, not a file, unreadable, no trimesh)."""
     if not isinstance(path, (str, os.PathLike)):
         raise InputValueError(f"mesh file path must be a str or os.PathLike, got {path!r}")
     p = os.fspath(path)
@@ -505,23 +506,29 @@ def _trimesh_load(path):
         import trimesh
     except ImportError as e:  # pragma: no cover - trimesh is a dev dependency
         raise BackendUnavailableError(f"reading mesh file {p!r} needs trimesh (pip install trimesh): {e}") from None
-    if p.lower().endswith(".obj"):
-        _check_obj_indices(p)
+    materials = _scan_obj(p) if p.lower().endswith(".obj") else set()
     try:
-        return p, trimesh.load(p, force="mesh", process=False)
+        return p, trimesh.load(p, force="mesh", process=False), materials
     except Exception as e:  # trimesh raises many kinds
         raise InputValueError(f"cannot read mesh file {p!r}: {type(e).__name__}: {e}") from None
 
 
-def _check_obj_indices(path):
-    """OBJ indices start at 1 (negative: relative); trimesh reads a 0 as the last vertex (a wrong,
-    degenerate face) instead of refusing it."""
+def _scan_obj(path) -> set:
+    """One pass over an OBJ file, beside trimesh's parse: the material file names its ``mtllib``
+    lines give (a name with spaces: the rest of the line; or several names), and InputValueError
+    at a face index 0. OBJ indices start at 1 (negative: relative); trimesh reads a 0 as the last
+    vertex (a wrong, degenerate face) instead of refusing it."""
+    names = set()
     with open(path, errors="replace") as f:
         for n, line in enumerate(f, 1):
             toks = line.split()
             if toks[:1] == ["f"] and any(tok.split("/")[0] == "0" for tok in toks[1:]):
                 raise InputValueError(f"mesh file {path!r} line {n}: {line.strip()!r} has index 0; OBJ indices "
                                       f"start at 1 (or are negative, counting back from the last vertex)")
+            if toks[:1] == ["mtllib"] and len(toks) > 1:
+                rest = line.split(None, 1)[1]
+                names.update((rest.strip(), *rest.split()))
+    return names
 
 
 def load_mesh(path) -> Mesh:
@@ -543,7 +550,7 @@ def load_mesh(path) -> Mesh:
     >>> load_mesh(path)
     Mesh(V=3, F=1)
     """
-    p, loaded = _trimesh_load(path)
+    p, loaded, _ = _trimesh_load(path)
     faces = getattr(loaded, "faces", None)
     vertices = getattr(loaded, "vertices", None)
     if faces is None or vertices is None or len(faces) == 0:
@@ -718,13 +725,11 @@ def get_textured_scene(name: str, **kwargs) -> TexturedMesh:
     return _call_scene(TEXTURED_SCENES[name], "textured scene", name, kwargs)
 
 
-def _obj_has_texture_map(path) -> bool:
-    """Whether an OBJ file names (``mtllib``) an existing material file with a ``map_Kd`` line: where
-    none does, trimesh gives the mesh a default material, a grey 2×2 image, not an error."""
+def _obj_has_texture_map(path, names) -> bool:
+    """Whether one of the material files ``names`` (an OBJ's ``mtllib``, next to ``path``) exists
+    with a ``map_Kd`` line: where none does, trimesh gives the mesh a default material, a grey 2×2
+    image, not an error."""
     folder = os.path.dirname(path)
-    with open(path, errors="replace") as f:  # a name with spaces (the rest of the line), or several names
-        lines = [line.split(None, 1) for line in f if line.split()[:1] == ["mtllib"]]
-    names = {n for parts in lines if len(parts) == 2 for n in (parts[1].strip(), *parts[1].split())}
     for name in names:
         mtl = os.path.join(folder, name)
         if os.path.isfile(mtl):
@@ -739,8 +744,8 @@ def load_textured_mesh(path) -> TexturedMesh:
     per-vertex uvs trimesh makes (it splits vertices along uv seams, so ``uv_faces`` = ``faces``) and
     the base-colour image as float albedo [Ht, Wt, 3|4] in [0, 1] (8-bit values / 255, not
     sRGB-decoded). Raises InputValueError naming the path when the file has no uvs or no image."""
-    p, loaded = _trimesh_load(path)
-    if p.lower().endswith(".obj") and not _obj_has_texture_map(p):  # (trimesh makes up a grey 2×2 one)
+    p, loaded, materials = _trimesh_load(path)
+    if p.lower().endswith(".obj") and not _obj_has_texture_map(p, materials):  # (trimesh makes up a grey 2×2 one)
         raise InputValueError(f"mesh file {p!r} has no texture image: no map_Kd in a material file it names")
     visual = getattr(loaded, "visual", None)
     uv = getattr(visual, "uv", None)
