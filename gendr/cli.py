@@ -203,21 +203,22 @@ def _render_specs(args):
     return dist, tcn, f"{dist.label()}|{tcn.label()}"
 
 
-def writable_dir(output, given=None) -> Path:
-    """An output folder (``-o``), checked before any work (a file in its path, or a folder we may not write
+def writable_dir(output, given=None, option: str = "-o") -> Path:
+    """An output folder, checked before any work (a file in its path, or a folder we may not write
     into, failed only when the results were written): it exists as a writable directory, or its
     nearest existing ancestor is one (the folders are made later, when there is something to write).
-    ``given``: the path the user named, for the message (default ``output``)."""
+    ``given``: the path the user named, for the message (default ``output``); ``option``: the
+    option that named it (``gendr experiment``'s ``--csv``, ``--json``)."""
     path, given = Path(output), str(output if given is None else given)
     probe = path
     while not probe.exists() and probe.parent != probe:
         probe = probe.parent
     if not probe.is_dir():
-        raise ParameterError(f"-o {given!r}: {str(probe)!r} exists and is not a directory")
+        raise ParameterError(f"{option} {given!r}: {str(probe)!r} exists and is not a directory")
     try:  # a real write: os.access says yes to root on read-only mounts and /proc
         tempfile.TemporaryFile(dir=probe).close()
     except OSError as e:
-        raise ParameterError(f"-o {given!r}: the directory {str(probe)!r} is not writable ({e.strerror})") from None
+        raise ParameterError(f"{option} {given!r}: the directory {str(probe)!r} is not writable ({e.strerror})") from None
     return path
 
 

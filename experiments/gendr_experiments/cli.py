@@ -5,7 +5,6 @@ import argparse
 import json
 import os
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -440,18 +439,20 @@ def _results(files, experiment=None) -> list[dict]:
 def _probe_write(path, option):
     """A real write test of ``path`` before the work (as root, os.access says yes to /proc and
     read-only mounts; the runs then ended in an error after all of them): an existing file is opened
-    for appending, writing nothing; else a nameless temporary file is made in the nearest existing
-    folder (the missing ones are made when the rows are written). Leaves nothing behind."""
+    for appending, writing nothing; else its folder is checked as ``gendr``'s own ``-o`` folders are
+    (:func:`gendr.cli.writable_dir`; the missing ones are made when the rows are written)."""
+    from gendr.cli import writable_dir
+    from gendr.errors import ParameterError
     p = Path(path)
     try:
         if p.is_file():
             open(p, "ab").close()
         else:
-            folder = next(d for d in p.absolute().parents if d.exists())
-            tempfile.TemporaryFile(dir=folder).close()
+            writable_dir(p.parent, given=str(path), option=option)
     except OSError as e:
-        where = str(p) if p.is_file() else f"the folder {str(folder)!r}"
-        raise UsageError(f"{option} {str(path)!r}: {where} is not writable ({e.strerror or e})") from None
+        raise UsageError(f"{option} {str(path)!r} is not writable ({e.strerror or e})") from None
+    except ParameterError as e:
+        raise UsageError(str(e)) from None
 
 
 def _rows_file(path):

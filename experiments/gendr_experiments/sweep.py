@@ -31,7 +31,7 @@ import numpy as np
 
 from gendr.errors import GendrError, InputValueError, ParameterError
 
-from .common import config_hash, provenance, read_source_hash, source_hash
+from .common import _is_int, config_hash, provenance, read_source_hash, source_hash
 
 __all__ = ["EXPERIMENTS", "OtherCodeError", "SchedulerUnreachableError", "ResultsFileError", "full_config",
            "expand", "run_config", "ResultStore", "execute", "load_rows", "check_row", "aggregate",
@@ -251,10 +251,6 @@ def _number(v):
     return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
-def _integer(v):
-    return isinstance(v, int) and not isinstance(v, bool)
-
-
 #: field -> (test, what it must be): every row has these (run_config writes them, errors included),
 #: and a finished (status ok) row its ``seconds``
 ROW_FIELDS = {
@@ -270,9 +266,9 @@ OPTIONAL_ROW_FIELDS = {
     "seconds": (lambda v: _number(v) and v >= 0, "a number of seconds >= 0"),
     **{k: (lambda v: v is None or _number(v), "a number or null") for k in ("cpu_seconds",)},
     **{k: (_number, "a number") for k in ("tau", "tau_start", "lr", "elevation")},
-    **{k: (_integer, "an integer") for k in ("seed", "pairs")},
-    "instance": (lambda v: v is None or _integer(v), "an integer or null"),
-    "successes": (lambda v: v is None or _integer(v), "an integer or null"),
+    **{k: (_is_int, "an integer") for k in ("seed", "pairs")},
+    "instance": (lambda v: v is None or _is_int(v), "an integer or null"),
+    "successes": (lambda v: v is None or _is_int(v), "an integer or null"),
     "label": (lambda v: isinstance(v, str), "a string"),
     "residual_deg": (lambda v: v is None or (isinstance(v, list) and all(x is None or _number(x) for x in v)),
                      "a list of numbers or null"),
