@@ -18,14 +18,27 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from .cameras import Camera, IntrinsicsCamera, PerspectiveCamera
-from .errors import DTypeError, ParameterError, ShapeError
+from .errors import DTypeError, InputValueError, ParameterError, ShapeError
 from .renderer import image_size_pair
 
 
 def _torch():
     import torch
     return torch
+
+
+def _float_dtype(dtype, owner):
+    """``dtype`` (None: float64) if it is torch.float32 or torch.float64, else DTypeError: an
+    integer dtype would truncate focal lengths and principal points without a word."""
+    torch = _torch()
+    if dtype is None:
+        return torch.float64
+    if dtype not in (torch.float32, torch.float64):
+        raise DTypeError(f"{owner}: dtype={dtype!r} must be torch.float32 or torch.float64")
+    return dtype
 
 
 def _intrinsics(camera, H, W, dtype, device):
@@ -48,7 +61,7 @@ def world_to_view(camera: Camera, dtype=None, device=None):
     """gendr's world → camera (OpenGL frame) transform as ``(R [Bc, 3, 3], t [Bc, 3])``:
     x_view = R·x_world + t. Differentiable w.r.t. tensor pose parameters.
 
-    ``dtype``: torch dtype (default float64); ``device``: torch device (default CPU); Bc: the
+    ``dtype``: torch.float32 or torch.float64 (default; else DTypeError); ``device``: torch device (default CPU); Bc: the
     camera's batch size (1 for an unbatched camera). Needs torch and the torch backend.
 
     >>> import gendr
@@ -60,7 +73,7 @@ def world_to_view(camera: Camera, dtype=None, device=None):
     torch = _torch()
     from gendr_torch.ops import torch_ops as ops  # (lazy: the spec layer imports no backend)
     from gendr_torch.raster import camera_tensors
-    dtype = dtype or torch.float64
+    dtype = _float_dtype(dtype, "world_to_view")
     P, _ = camera_tensors(camera, dtype, device or "cpu")
     r, u, b, e = camera.basis(ops, P)  # each a 3-tuple of [Bc|1, 1]: broadcast (a batched eye, a fixed up)
     c = torch.broadcast_tensors(*r, *u, *b, *e)
@@ -72,7 +85,8 @@ def world_to_view(camera: Camera, dtype=None, device=None):
 def project_points(camera: Camera, points, image_size):
     """Pixel coordinates (column, row) of world points in gendr's convention (pixel centres at
     j + ½, rows from the top), by the same spec formulas the backends project with:
-    ``points`` [B?, N, 3] float tensor → [B, N, 2] (differentiable). Points behind a perspective
+    ``points`` [B?, N, 3] float32/float64 tensor (finite; else DTypeError / InputValueError)
+    → [B, N, 2] (differentiable). Points behind a perspective
     camera project mirrored, as with any pinhole formula.
 
     ``image_size``: (H, W) or int. The result has the points' dtype and device; it is
@@ -88,11 +102,15 @@ def project_points(camera: Camera, points, image_size):
     from gendr_torch.ops import torch_ops as ops
     from gendr_torch.raster import camera_tensors
     H, W = image_size_pair(image_size, "project_points")
-    if not isinstance(points, torch.Tensor) or not points.is_floating_point():
-        raise DTypeError(f"project_points: points must be a float torch tensor, got "
+    if not isinstance(points, torch.Tensor) or points.dtype not in (torch.float32, torch.float64):
+        raise DTypeError(f"project_points: points must be a float32 or float64 torch tensor, got "
                          f"{type(points).__name__}{'' if not hasattr(points, 'dtype') else ' of ' + str(points.dtype)}")
     if points.ndim not in (2, 3) or points.shape[-1] != 3:
         raise ShapeError(f"project_points: points must be [N, 3] or [B, N, 3], got {list(points.shape)}")
+    bad = (~torch.isfinite(points.detach())).nonzero()
+    if len(bad):
+        i = tuple(int(v) for v in bad[0])
+        raise InputValueError(f"project_points: points must be finite; points{list(i)} = {float(points[i])}")
     pts = points if points.ndim == 3 else points[None]
     Bc = camera.batch_size()
     if pts.shape[0] not in (1, Bc) and Bc != 1:
@@ -116,13 +134,13 @@ def to_kornia(camera: Camera, image_size, *, dtype=None, device=None):
     camera : a :class:`PerspectiveCamera` or :class:`IntrinsicsCamera` (batched or not; tensors may
         require grad: the result's matrices are differentiable w.r.t. them).
     image_size : (H, W) or int.
-    dtype : torch dtype of the matrices (default float64); device : torch device.
+    dtype : torch.float32 or torch.float64 (default), the matrices' dtype; device : torch device.
 
     Returns a PinholeCamera with intrinsics/extrinsics [B, 4, 4], height/width [B] (B: the camera's
     batch size). Its ``project`` gives pixel coordinates = gendr's (column, row) − ½.
 
     Raises :class:`~gendr.errors.ParameterError` for an orthographic camera or a bad
-    ``image_size``. Needs torch and kornia.
+    ``image_size``, :class:`~gendr.errors.DTypeError` for another dtype. Needs torch and kornia.
 
     >>> import gendr
     >>> from gendr.interop import to_kornia
@@ -133,7 +151,7 @@ def to_kornia(camera: Camera, image_size, *, dtype=None, device=None):
     torch = _torch()
     from kornia.geometry.camera import PinholeCamera
     H, W = image_size_pair(image_size, "to_kornia")
-    dtype = dtype or torch.float64
+    dtype = _float_dtype(dtype, "to_kornia")
     R, t = world_to_view(camera, dtype, device)
     fx, fy, cx, cy = _intrinsics(camera, H, W, dtype, R.device)
     B = max(R.shape[0], fx.shape[0])
@@ -154,9 +172,12 @@ def from_kornia(pinhole, *, near=0.1, far=100.0) -> IntrinsicsCamera:
     """A batched :class:`IntrinsicsCamera` ([B] intrinsics, [B, 3] eye/at/up) equivalent to a
     ``kornia.geometry.camera.PinholeCamera`` (render it at ``image_size=(int(pinhole.height[0]),
     int(pinhole.width[0]))``). Differentiable w.r.t. the pinhole's tensors. Needs zero skew and a
-    rotation in the extrinsics (raises :class:`ParameterError` otherwise; :class:`ShapeError`
-    unless intrinsics and extrinsics are [B, 4, 4]). The camera's values are tensors of the
-    pinhole's dtype and device.
+    rotation in the extrinsics (a proper one, det +1, to max(1e-6, 100 ulp) of the dtype; raises
+    :class:`ParameterError` otherwise; :class:`ShapeError` unless intrinsics and extrinsics are
+    [B, 4, 4]). The camera's values are tensors of the pinhole's dtype and device.
+
+    kornia has no clip planes: give ``near``/``far`` (view depths) for the scene, or the
+    defaults apply (0.1, 100).
 
     >>> import torch, gendr
     >>> from gendr.interop import from_kornia, project_points, to_kornia
@@ -174,12 +195,20 @@ def from_kornia(pinhole, *, near=0.1, far=100.0) -> IntrinsicsCamera:
         raise ParameterError(f"from_kornia: skewed intrinsics (K[0, 1] = {K[:, 0, 1].detach().tolist()}) "
                              f"have no gendr camera")
     Rc, tc = E[:, :3, :3], E[:, :3, 3]
-    err = (Rc @ Rc.transpose(1, 2) - torch.eye(3, dtype=Rc.dtype, device=Rc.device)).detach().abs().max()
-    if float(err) > 1e-6:
-        raise ParameterError(f"from_kornia: the extrinsics' 3x3 block is not a rotation (|RRᵀ − I| = {float(err):.3g})")
+    err = float((Rc @ Rc.transpose(1, 2) - torch.eye(3, dtype=Rc.dtype, device=Rc.device)).detach().abs().max())
+    tol = max(1e-6, 100 * torch.finfo(Rc.dtype).eps)  # a float32 product of a few rotations: ~1e-6
+    if not err <= tol:  # (NaN fails too)
+        raise ParameterError(f"from_kornia: the extrinsics' 3x3 block is not a rotation (|RRᵀ − I| = {err:.3g} > {tol:.3g})")
+    det = torch.linalg.det(Rc.detach())
+    if bool((det < 0).any()):  # a reflection passes RRᵀ = I; gendr's frame would mirror x silently
+        raise ParameterError(f"from_kornia: the extrinsics' 3x3 block is a reflection (det = {det.tolist()}), "
+                             f"not a rotation")
     eye = -(Rc.transpose(1, 2) @ tc[..., None])[..., 0]  # camera centre in the world
     forward, down = Rc[:, 2], Rc[:, 1]  # OpenCV +Z (viewing direction) and +Y (down), world frame
-    return IntrinsicsCamera(eye=eye, at=eye + forward, up=-down, near=near, far=far,
+    # at as far along the view as the eye is from the origin: at − eye then keeps its precision in
+    # float32 (at = eye + forward lost 0.1 px at |eye| = 1e4 and met eye at 3e7)
+    reach = 1.0 + eye.detach().norm(dim=-1, keepdim=True)
+    return IntrinsicsCamera(eye=eye, at=eye + forward * reach, up=-down, near=near, far=far,
                             fx=K[:, 0, 0], fy=K[:, 1, 1], cx=K[:, 0, 2] + 0.5, cy=K[:, 1, 2] + 0.5)
 
 
@@ -207,12 +236,21 @@ def from_pytorch3d_look_at(dist=1.0, elev=0.0, azim=0.0, *, fov=60.0, degrees=Tr
     (Orbit(azimuth=30.0, elevation=10.0, distance=2.7), 60.0, 1.0, 100.0)
     """
     from .cameras import Orbit
-    to_deg = (lambda v: v) if degrees else (lambda v: v * (180.0 / math.pi))
+
+    def to_deg(v):
+        if degrees:
+            return v
+        return (np.asarray(v, dtype=float) if isinstance(v, (list, tuple)) else v) * (180.0 / math.pi)
     fov_d = to_deg(fov)
     if image_size is not None:
         H, W = image_size_pair(image_size, "from_pytorch3d_look_at")
         if H > W:
             ratio = H / W
+            # checked here, since past 180° the conversion would make a bad fov a negative fov_y
+            v = np.asarray(fov_d.detach().cpu() if hasattr(fov_d, "detach") else fov_d, dtype=float)
+            if not np.all((v > 0.0) & (v < 180.0)):
+                raise ParameterError(f"from_pytorch3d_look_at parameter fov={fov!r} must be a field of view in "
+                                     f"(0, 180) degrees")
             if isinstance(fov_d, (int, float)):
                 fov_d = 2.0 * math.degrees(math.atan(math.tan(math.radians(fov_d) / 2.0) * ratio))
             else:

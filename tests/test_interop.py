@@ -71,14 +71,25 @@ def test_cameras_with_one_batched_parameter():
 
 
 def test_interop_input_errors():
-    from gendr.errors import DTypeError, ShapeError
+    from gendr.errors import DTypeError, InputValueError, ShapeError
     cam = gendr.orbit_camera(np.array([0.0, 40.0, 80.0]), 10.0, 3.0)
     with pytest.raises(ShapeError, match="points have batch size 2, the camera 3"):
         interop.project_points(cam, torch.zeros(2, 4, 3), 8)
     with pytest.raises(ShapeError, match=r"\[N, 3\] or \[B, N, 3\], got \[4, 2\]"):
         interop.project_points(cam, torch.zeros(4, 2), 8)
-    with pytest.raises(DTypeError, match="float torch tensor, got ndarray"):
+    with pytest.raises(DTypeError, match="float32 or float64 torch tensor, got ndarray"):
         interop.project_points(cam, np.zeros((4, 3)), 8)
+    with pytest.raises(DTypeError, match="got Tensor of torch.float16"):  # (was projected in float16)
+        interop.project_points(cam, torch.zeros(4, 3, dtype=torch.float16), 8)
+    pts = torch.zeros(4, 3)
+    pts[2, 1] = float("nan")
+    with pytest.raises(InputValueError, match=r"points\[2, 1\] = nan"):  # (was projected to NaN)
+        interop.project_points(cam, pts, 8)
+    for bad in (torch.int32, torch.int64, "float32"):  # an integer dtype truncated fx and cx silently
+        with pytest.raises(DTypeError, match=f"dtype={bad!r} must be torch.float32 or torch.float64"):
+            interop.world_to_view(cam, dtype=bad)
+        with pytest.raises(DTypeError, match=f"dtype={bad!r} must be"):
+            interop.to_kornia(cam, 8, dtype=bad)
     for size in (0, -4, (8, 0)):
         with pytest.raises(ParameterError, match="is out of domain: expected > 0"):
             interop.project_points(cam, torch.zeros(4, 3), size)
@@ -109,6 +120,45 @@ def test_kornia_rejects_what_it_cannot_express():
     pin.intrinsics[:, 0, 1] = 0.3
     with pytest.raises(ParameterError, match="skew"):
         interop.from_kornia(pin)
+    # a reflection has RRᵀ = I too; it was taken, and its camera mirrored x
+    pin = interop.to_kornia(gendr.orbit_camera(20.0, 10.0, 3.0), (8, 8))
+    pin.extrinsics[:, 0, :3] *= -1.0
+    with pytest.raises(ParameterError, match=r"a reflection \(det = \[-1"):
+        interop.from_kornia(pin)
+    for scale in (1.001, float("nan")):
+        pin = interop.to_kornia(gendr.orbit_camera(20.0, 10.0, 3.0), (8, 8), dtype=torch.float32)
+        pin.extrinsics[:, :3, :3] *= scale
+        with pytest.raises(ParameterError, match="not a rotation"):
+            interop.from_kornia(pin)
+
+
+def test_from_kornia_float32_rotations_and_far_cameras():
+    """Two float32 cases: products of float32 rotations reach |RRᵀ − I| ≈ 1.2e-6, past the old
+    fixed 1e-6 bound; and a camera 1e4 units from the origin (a calibration in millimetres) lost
+    0.1 px through at = eye + forward. kornia's own float32 projection errs by ~1e-4 px here."""
+    kornia = pytest.importorskip("kornia")
+    g = torch.Generator().manual_seed(0)
+    R = kornia.geometry.conversions.axis_angle_to_rotation_matrix(torch.randn(3 * 3000, 3, generator=g) * 2)
+    R3 = R[:3000] @ R[3000:6000] @ R[6000:]
+    err = (R3 @ R3.transpose(1, 2) - torch.eye(3)).abs().amax((1, 2))
+    assert float(err.max()) > 1e-6  # the case exists in this sample
+    E = torch.eye(4).repeat(len(R3), 1, 1)
+    E[:, :3, :3], E[:, :3, 3] = R3, torch.tensor([0.0, 0.0, 3.0])
+    K = torch.eye(4).repeat(len(R3), 1, 1)
+    K[:, 0, 0] = K[:, 1, 1] = 50.0
+    K[:, 0, 2] = K[:, 1, 2] = 32.0
+    cam = interop.from_kornia(kornia.geometry.camera.PinholeCamera(K, E, torch.full((3000,), 64.0),
+                                                                    torch.full((3000,), 64.0)))
+    assert cam.batch_size() == 3000
+    H = W = 1000
+    for d in (1e4, 3e7):  # 3e7: at met eye in float32 (DegenerateCameraError)
+        cam64 = gendr.IntrinsicsCamera(eye=(d * 0.6, d * 0.3, d * 0.742), fx=1000.0, fy=1000.0, cx=500.0, cy=500.0,
+                                       near=1.0, far=1e9)
+        pts = torch.tensor([[10.0, 20.0, -30.0], [0.0, 0.0, 0.0]], dtype=torch.float64) * (d / 1e3)
+        truth = interop.project_points(cam64, pts, (H, W))[0]
+        back = interop.from_kornia(interop.to_kornia(cam64, (H, W), dtype=torch.float32))
+        got = interop.project_points(back, pts.float(), (H, W))[0].double()
+        assert float((got - truth).abs().max()) < 2e-3  # px; 20x kornia's float32 error, 50x below the old one
 
 
 def _pytorch3d_pixels(pts, dist, elev, azim, fov, H, W, at=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0)):
@@ -143,6 +193,13 @@ def test_pytorch3d_look_at_matches_hand_computed_projection(H, W):
 
 def test_pytorch3d_eye_and_radians():
     pts = _points(10, 2)
+    # lists with degrees=False (raised TypeError: can't multiply sequence) equal the degree form
+    c = interop.from_pytorch3d_look_at(2.0, [math.radians(10), 0.0], [math.radians(50), 1.0],
+                                      fov=math.radians(60), degrees=False)
+    np.testing.assert_allclose(c.eye.azimuth, [50.0, math.degrees(1.0)])
+    # a bad fov is named as given, not as the fov_y it converts to for H > W (was "fov_y=-169.92")
+    with pytest.raises(ParameterError, match=r"fov=200 must be a field of view in \(0, 180\) degrees"):
+        interop.from_pytorch3d_look_at(fov=200, image_size=(32, 16))
     a = interop.from_pytorch3d_look_at(2.0, math.radians(10), math.radians(50), fov=math.radians(50), degrees=False)
     b = interop.from_pytorch3d_look_at(2.0, 10.0, 50.0, fov=50.0)
     np.testing.assert_allclose(interop.project_points(a, pts, 16).numpy(), interop.project_points(b, pts, 16).numpy(),
