@@ -46,6 +46,16 @@ ZERO_AREA_ULPS = 64
 FAR_CORNER = 4.0
 
 
+def softmax_min_coverage(dtype: str) -> float:
+    """The smallest coverage p that the softmax blend weighs (``dtype`` "float32" or "float64"); a
+    smaller p counts as 0. It is the dtype's smallest normal number over its epsilon (~1e-292 in
+    float64, ~1e-31 in float32): below it, a weight times a colour can fall into the subnormal
+    range, which Dr.Jit's kernels may flush to 0 (a colour channel of a pixel far from every face
+    came out 0 at eps = 0); above it, what flushing can lose is below one ulp of the colour."""
+    fi = np.finfo(dtype)
+    return float(fi.tiny / fi.eps)
+
+
 def check_screen_reach(reach: float, dtype: str) -> None:
     """InputValueError where a face's projected corner lies so far out (``reach``: the largest
     |X| or |Y|, screen units) that its squared edge lengths overflow ``dtype`` ("float32" or

@@ -26,7 +26,7 @@ Autograd through this code gives the reference gradients. Conventions (DESIGN.md
 * ``cull_backfaces``: only faces whose clipped projection is counter-clockwise on screen (signed
   area > 0, Y up) take part in the RGB blend; the silhouette always counts every face;
 * softmax weights p·exp((z̃ − m)/γ), z̃ = (far − depth)/(far − near), depth = the interpolated
-  positive view depth −z (clamped to >= near), m = max(ε_bg, max of z̃ over taking-part faces with p > 0), background
+  positive view depth −z (clamped to >= near), m = max(ε_bg, max of z̃ over taking-part faces with p >= softmax_min_coverage), background
   weight exp((ε_bg − m)/γ);
 * hard: the colour of the nearest taking-part face whose polygon contains the pixel centre, else
   the background colour;
@@ -45,7 +45,7 @@ import torch
 
 from gendr_torch.ops import torch_ops as ops  # the ops namespace only
 
-from gendr.renderer import LAMBERT_KINK_ULPS, ZERO_AREA_ULPS
+from gendr.renderer import LAMBERT_KINK_ULPS, ZERO_AREA_ULPS, softmax_min_coverage
 from gendr.tconorms import ARCHIMEDEAN, HARD_OR, MAX, MEAN
 
 __all__ = ["render_naive", "render_naive_settings", "pixel_face_geometry"]
@@ -299,7 +299,8 @@ def render_naive(vertices, faces, camera, *, distribution, tconorm, tau, image_s
         elif blend == "softmax":
             num = torch.zeros(H, W, 3, dtype=dtype)
             den = torch.zeros(H, W, dtype=dtype)
-            part = [tp & (p > 0) for tp, p in zip(takes_part, ps)]
+            p_min = softmax_min_coverage(str(dtype).replace("torch.", ""))
+            part = [tp & (p >= p_min) for tp, p in zip(takes_part, ps)]
             m = torch.full((H, W), float(background_eps), dtype=dtype)
             for pt, depth in zip(part, depths):
                 zt = (far - depth) / (far - near)

@@ -177,6 +177,22 @@ def test_odds_product_where_faces_overlap_and_odds_overflow(tau, tcn, dist):
     _matches_torch_sum_of_generators(dist, tcn, tau, saturates=dist.family.name == "logistic")
 
 
+
+@pytest.mark.parametrize("p", [1e28, 1e31, 2.0 ** 40])
+def test_hamacher_large_p_one_face_alpha_is_its_coverage(p):
+    """One face: every T-conorm's aggregate is the face's coverage. The odds product's cap 2^100
+    saturated Hamacher's Q/(Q + p) to alpha 1 where p/Q was not negligible: p = 1e28 rendered 1 at
+    coverage 0.9953, 1e31 at 0.16. Beyond ODDS_FACTOR_MAX = 2^40 the generator loop runs instead;
+    at 2^40 itself the product stays exact. float64, to F64_TOL."""
+    V = torch.tensor([[-0.5, -0.4, 0.0], [0.6, -0.3, 0.1], [0.0, 0.5, -0.1]], dtype=torch.float64)
+    cam = gendr.PerspectiveCamera(eye=(0.0, 0.0, 3.0), fov_y=40.0)
+    cover = gendr.Renderer("logistic", "max", tau=0.01, image_size=10, blend=None, backend="torch")
+    want = cover.render(V, np.array([[0, 1, 2]]), cam)[..., 3]
+    r = gendr.Renderer("logistic", gendr.tconorm("hamacher", p=p), tau=0.01, image_size=10, blend=None,
+                       backend="drjit")
+    got = r.render(V, np.array([[0, 1, 2]]), cam)[..., 3]
+    assert float((got - want).abs().max()) <= F64_TOL
+
 @pytest.mark.parametrize("dist", ["logistic", "cauchy", "reciprocal", "reversed logistic"])
 @pytest.mark.parametrize("p", [0.5, 2.0])
 @pytest.mark.parametrize("tau", [0.1, 1e-3])
@@ -416,3 +432,54 @@ def test_exact_ties_go_to_the_lowest_face():
         assert float(rgb[..., 0][covered].min()) > 0.0 and float(rgb[..., 2][covered].abs().max()) == 0.0, be
         img[..., 3].sum().backward()
         assert float(v.grad[:3].abs().max()) > 0.0 and float(v.grad[3:].abs().max()) == 0.0, be
+
+
+def _two_small_faces():
+    faces = np.array([[0, 1, 2], [3, 4, 5]])
+    verts = torch.tensor([[-0.5, -0.4, 0.0], [0.6, -0.3, 0.1], [0.0, 0.5, -0.1],
+                          [-0.2, -0.1, 0.3], [0.4, 0.1, 0.3], [0.1, 0.6, 0.2]], dtype=torch.float64)
+    return verts, faces, torch.as_tensor(np.random.default_rng(0).random((6, 3)))
+
+
+def test_softmax_with_tiny_coverages_matches_finite_differences():
+    """eps = 0 and τ = 1e-3: far from both faces every coverage is tiny (~1e-170) and the background
+    weight underflows, so the softmax denominator was ~1e-170 and Dr.Jit's −a/b² derivative of the
+    ratio overflowed: dτ NaN, vertex gradients 40 % off (-3.01 against -5.00), no error. Both
+    backends now keep the denominator >= 1 (m includes γ·ln p). Central differences with a 1e-6
+    relative step; the tolerance 1e-5 relative is ~100x their round-off here."""
+    verts, faces, cols = _two_small_faces()
+    cam = gendr.PerspectiveCamera(eye=(0.0, 0.0, 3.0), fov_y=40.0)
+    weight = torch.as_tensor(np.random.default_rng(1).standard_normal((1, 12, 12, 4)))
+    direction = torch.as_tensor(np.random.default_rng(3).standard_normal((6, 3)))
+
+    def loss(backend, v, tau):
+        r = gendr.Renderer("logistic", "probabilistic", tau=tau, image_size=12, eps=0.0, backend=backend)
+        return (r.render(v, faces, cam, vertex_colors=cols) * weight).sum()
+
+    h, tau0 = 1e-6, 1e-3
+    fd_v = float(loss("torch", verts + h / 2 * direction, tau0) - loss("torch", verts - h / 2 * direction, tau0)) / h
+    fd_t = float(loss("torch", verts, tau0 * (1 + h / 2)) - loss("torch", verts, tau0 * (1 - h / 2))) / (h * tau0)
+    for backend in ("torch", "drjit"):
+        v = verts.clone().requires_grad_()
+        t = torch.tensor(tau0, dtype=torch.float64, requires_grad=True)
+        loss(backend, v, t).backward()
+        assert abs(float((v.grad * direction).sum()) - fd_v) < 1e-5 * abs(fd_v), backend
+        assert abs(float(t.grad) - fd_t) < 1e-5 * abs(fd_t), backend
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_softmax_tiny_coverage_colours_agree(dtype):
+    """A 0.003-wide face at 64², eps = 0, τ = 1e-3: pixels a few pixels away have coverage below
+    1e-300 and a background weight of ~e^-3300. The softmax blend there gives the face's colour.
+    Torch kept a subnormal coverage and Dr.Jit flushed it (RGB 0.96 apart at 14 pixels); where every
+    weight underflowed, the colour came out 0. Both now agree everywhere to float rounding (1e-9 in
+    float64, 1e-5 in float32 where RGB is a ratio of sums of ~1 terms)."""
+    v = torch.tensor([[0.0, 0.0, 0.0], [0.003, 0.0, 0.0], [0.0, 0.003, 0.0]], dtype=dtype)
+    col = torch.as_tensor(np.random.default_rng(0).random((3, 3)), dtype=dtype)
+    cam = gendr.PerspectiveCamera(eye=(0.0, 0.0, 3.0), fov_y=40.0)
+    img = {}
+    for backend in ("torch", "drjit"):
+        r = gendr.Renderer("logistic", "probabilistic", tau=0.001, image_size=64, eps=0.0, backend=backend)
+        img[backend] = r.to_numpy(r.render(v, np.array([[0, 1, 2]]), cam, vertex_colors=col))[0]
+    tol = 1e-9 if dtype == torch.float64 else 1e-5
+    np.testing.assert_allclose(img["drjit"], img["torch"], rtol=0, atol=tol)

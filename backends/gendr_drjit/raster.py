@@ -31,7 +31,8 @@ from dataclasses import replace
 import numpy as np
 import drjit as dr
 
-from gendr.renderer import FAR_CORNER, LAMBERT_KINK_ULPS, ZERO_AREA_ULPS, check_screen_reach
+from gendr.renderer import (FAR_CORNER, LAMBERT_KINK_ULPS, ZERO_AREA_ULPS, check_screen_reach,
+                            softmax_min_coverage)
 from gendr.tconorms import HARD_OR, MAX, MEAN
 
 #: tile edges tried in order (see tile_size); TILE != 0 forces one
@@ -953,14 +954,19 @@ def _strip_pixel(T, edges, py, track):
     return d, (kk, tt, dr.select(inside, -nxb, qxb / r), dr.select(inside, -nyb, qyb / r))
 
 
-#: the odds product's cap: a pixel that reaches it (Σ g ≥ log1p(2^100) = 69.3, where 1 − e^(−S) is 1 in
-#: float32 and float64 alike, or an overflowing e^x) saturates: alpha 1, gradient 0 (≤ e^(−69.3) exact)
+#: the odds product's cap: a pixel that reaches it (Q = Π(1 + c·odds) − 1 ≥ 2^100, or an overflowing
+#: e^x) saturates: alpha 1, gradient 0. Exact to float64 while c ≤ ODDS_FACTOR_MAX: alpha is
+#: Q/(Q + c) (1 − e^(−S) for c = 1), whose 1 − alpha ≤ c/Q ≤ 2^−60 is below float64's ulp
 ODDS_PRODUCT_MAX = 2.0 ** 100
+#: the largest c summed as an odds product; a larger one (Hamacher p > 2^40) takes the generator's
+#: own loop (capped, p = 1e28 rendered alpha 1 where the coverage was 0.9953, and 1e31: 0.16)
+ODDS_FACTOR_MAX = 2.0 ** 40
 
 
 def odds_factor(dist, tcn):
     """c where the loops sum the generator as an odds product log Π(1 + c·odds) (alpha_sums), else None."""
-    return tcn.odds_product_factor() if dist.has_odds else None
+    c = tcn.odds_product_factor() if dist.has_odds else None
+    return c if c is None or c <= ODDS_FACTOR_MAX else None
 
 
 def alpha_sums(s, fc, T, ops, pix, tau):
@@ -1365,11 +1371,12 @@ def rgb_softmax(s, fc, T, ops, pix, tau):
     zscale = 1.0 / (fc.far - fc.near)
     tau_d = dr.detach(tau)
     x_cut = s.cutoff_argument(ops, tau_d)  # (once, outside the loops)
+    p_min = softmax_min_coverage("float64" if T.double else "float32")
 
     def live_zt(f, tau_, track=True):
         d = signed_distance(fc, T, f, px, py)[0] if track else distance_parts(fc, T, f, px, py, False)[0]
         p = coverage(s, ops, d, tau_, x_cut)
-        live = p > 0.0
+        live = p >= p_min  # (a tinier p counts as 0: kernels may flush its products)
         if cull:
             live = live & dr.gather(T.Bool, fc.front, f)
         depth, col = shade_pair(fc, T, f, px, py, s)
@@ -1396,8 +1403,16 @@ def rgb_softmax(s, fc, T, ops, pix, tau):
                                        lambda wi, bits, *a: bits != 0, body_sum, max_iterations=-1,
                                        labels=("w", "bits", "r", "g", "b", "den"))
     wb = dr.exp((beps - m) / gamma)
-    den = den + wb
-    return [(num + wb * s.background[c]) / den for c, num in enumerate((r, g, b))]
+    den = den + wb  # >= p_min: the nearest live face's weight is its p
+
+    def ratio(a):
+        # a/den with the derivatives 1/den and −(a/den)/den: Dr.Jit's own −a/den² underflows where
+        # every coverage is tiny (eps = 0: den ~1e-170 gave NaN and 40 % wrong gradients)
+        q = dr.detach(a) / dr.detach(den)
+        if not (dr.grad_enabled(a) or dr.grad_enabled(den)):
+            return q
+        return q + ((a - dr.detach(a)) - q * (den - dr.detach(den))) / dr.detach(den)
+    return [ratio(num + wb * s.background[c]) for c, num in enumerate((r, g, b))]
 
 
 def render(settings, camera, ops, T, P, Bc, verts, Bv, V, faces_np, colors, per_face, tau, tex=None):

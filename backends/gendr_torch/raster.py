@@ -22,7 +22,8 @@ from torch.utils.checkpoint import checkpoint
 
 from gendr.cameras import VEC3
 from gendr.errors import ShapeError
-from gendr.renderer import FAR_CORNER, LAMBERT_KINK_ULPS, ZERO_AREA_ULPS, check_screen_reach
+from gendr.renderer import (FAR_CORNER, LAMBERT_KINK_ULPS, ZERO_AREA_ULPS, check_screen_reach,
+                            softmax_min_coverage)
 from gendr.tconorms import MAX, MEAN
 
 from .fused import FusedChains
@@ -854,7 +855,8 @@ def _blend(settings, fc, sh, pix, npix, px, py, p, inside, face):
     # softmax over depth (SoftRas): weights p·exp(z̃/γ), background exp(ε/γ)
     zt = (fc.far - depth) / (fc.far - fc.near)
     gamma, beps = settings.gamma, settings.background_eps
-    live = p > 0  # (p is 0 where culled)
+    # (p is 0 where culled; a tinier p counts as 0, as in Dr.Jit, where kernels may flush it)
+    live = p >= softmax_min_coverage(str(dtype).replace("torch.", ""))
     if settings.cull_backfaces:
         live = live & fc.front[face]
     key = torch.where(live, zt.detach(), torch.full_like(zt, -math.inf))
