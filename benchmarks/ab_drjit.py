@@ -1,9 +1,13 @@
 """Interleaved A/B of two versions of the Dr.Jit rasterizer in one process (for shared, noisy machines).
 
-    git show 76367e8:backends/gendr_drjit/raster.py > /tmp/raster_base.py
+    git show HEAD~1:backends/gendr_drjit/raster.py > /tmp/raster_base.py   # a recent version: below
     .venv/bin/python benchmarks/ab_drjit.py /tmp/raster_base.py --tau 0.01 --steps 14
     .venv/bin/python benchmarks/ab_drjit.py /tmp/raster_base.py --tau 0.003 --threads 2 --steps 20
     .venv/bin/python benchmarks/ab_drjit.py /tmp/raster_base.py --dist cauchy --steps 3 --target paper:airplane.obj
+
+The other file must take the calls of the current backend: one from before an interface change
+fails at its first call (76367e8's: "'Types' object has no attribute 'device'"); compare such
+versions with ``ab_render.py``, which alternates processes of two source trees.
 
 One shape step of the paper protocol (``gendr_experiments.shape.ShapeProblem``: 24 views at 64², the
 1,280-face template; by default towards the built-in ``airplane``, as ``bench_step.py``), with

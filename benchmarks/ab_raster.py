@@ -1,9 +1,14 @@
 """Interleaved A/B of two versions of the torch rasterizer in one process (for shared, noisy machines).
 
-    git show 02f31c3:backends/gendr_torch/raster.py > /tmp/raster_base.py
+    git show HEAD~1:backends/gendr_torch/raster.py > /tmp/raster_base.py   # a recent version: below
     .venv/bin/python benchmarks/ab_raster.py /tmp/raster_base.py --threads 1 --n 20 [--fwd]
     .venv/bin/python benchmarks/ab_raster.py /tmp/raster_base.py --threads 1 --n 6 --dist cauchy --size 64 --batch 4
     .venv/bin/python benchmarks/ab_raster.py /tmp/raster_base.py --threads 1 --shape --n 8
+
+The other file must take the calls of the current backend (``raster.render``'s arguments): one
+from before an interface change fails at its first call (02f31c3's: "render() takes 6 positional
+arguments but 8 were given"). Compare such versions with ``ab_render.py``, which alternates
+processes of two source trees.
 
 The other module replaces ``gendr_torch.backend.raster`` on alternate calls (``--shape``: on
 alternate steps of one optimisation; its first step, a warm-up, is not timed). Reports the largest

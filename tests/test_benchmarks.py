@@ -106,3 +106,31 @@ def test_readme_figures_are_the_committed_json():
     assert f"(frozen: {rows['drjit']['frozen']['forward_backward']['median_ms']:.1f} ms)" in readme
     assert (f"drjit {large['forward']['median_ms'] / 1000:.2f} s forward, "
             f"{large['forward_backward']['median_ms'] / 1000:.2f} s forward+backward") in readme
+
+
+def test_backends_table_is_the_committed_json():
+    """docs/backends.md's comparison table quotes the same JSON as the README (it had kept figures
+    of an older run: 58.1 / 103.8 ms for torch where the JSON says 42.0 / 104.1)."""
+    res = BENCH / "results"
+    doc = (BENCH.parent / "docs" / "backends.md").read_text()
+    table = "\n".join(line for line in doc.splitlines() if line.startswith("| "))
+
+    def first(name):
+        return json.loads((res / name).read_text())["results"][0]
+    torch_, compiled, drjit, large = (first(f"render_{k}.json") for k in ("torch", "torch_compiled", "drjit", "drjit_large"))
+    commit = json.loads((res / "render_drjit.json").read_text())["machine"]["git_commit"]
+    assert f"measured at {commit}" in table
+
+    def ms(r):
+        return f"{r['forward']['median_ms']:.1f} / {r['forward_backward']['median_ms']:.1f} ms"
+    assert f"| {ms(torch_)}; `compile=True`: {ms(compiled)} | {ms(drjit)}; a 100-step optimisation loop: " \
+           f"{drjit['optimization_loop']['median_ms']:.1f} ms per step" in table
+    assert (f"| {torch_['forward']['peak_extra_mb']:.0f} / {torch_['forward_backward']['peak_extra_mb']:.0f} MB | "
+            f"{drjit['forward']['peak_extra_mb']:.1f} / {drjit['forward_backward']['peak_extra_mb']:.1f} MB |") in table
+    assert (f"{large['forward']['median_ms'] / 1000:.2f} s / {large['forward_backward']['median_ms'] / 1000:.2f} s, "
+            f"{large['forward']['peak_extra_mb']:.0f} / {large['forward_backward']['peak_extra_mb']:.0f} MB") in table
+    assert (f"{drjit['forward']['first_call_cold_ms']:.0f} ms (fwd) / "
+            f"{drjit['forward_backward']['first_call_cold_ms']:.0f} ms (fwd+bwd)") in table
+    steps = {r["compile"]: r for r in json.loads((res / "step_torch.json").read_text())["results"] if r["case"] == "shape"}
+    assert (f"takes {steps[True]['first_step_ms'] / 1000:.1f} s with an empty Inductor cache, later ones "
+            f"{steps[True]['median_ms']:.1f} ms against {steps[False]['median_ms']:.1f} ms eager") in table
