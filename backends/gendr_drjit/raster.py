@@ -947,11 +947,16 @@ def _strip_pixel(T, edges, py, track):
     d = dr.select(inside, emin, -r)
     if not track:
         return d, None
+    # outside, (p − q)/|p − q| is −n where q lies within the edge: taken as such where that edge is
+    # also the nearest line (as the torch backend's signed_distance), since on the edge the
+    # quotient's direction is rounding noise
+    normal = (td > 0.0) & (td < 1.0) & (ke == kd) & ((nxb != 0.0) | (nyb != 0.0))
+    uox, uoy = dr.select(normal, -nxb, qxb / r), dr.select(normal, -nyb, qyb / r)
     kk, tt = dr.select(inside, ke, kd), dr.select(inside, te, td)
     if edges[0][-1] is not None:  # t was measured from the anchor: from corner k it is 1 − t
         swapped = kk >= 4
         kk, tt = dr.select(swapped, kk - 4, kk), dr.select(swapped, 1.0 - tt, tt)
-    return d, (kk, tt, dr.select(inside, -nxb, qxb / r), dr.select(inside, -nyb, qyb / r))
+    return d, (kk, tt, dr.select(inside, -nxb, uox), dr.select(inside, -nyb, uoy))
 
 
 #: the odds product's cap: a pixel that reaches it (Q = Π(1 + c·odds) − 1 ≥ 2^100, or an overflowing
