@@ -169,11 +169,13 @@ def check_colour_dtype(dtype, name: str) -> None:
 
 def host_array(x, name: str) -> np.ndarray:
     """``x`` (a list, NumPy array, anything ``np.asarray`` reads) as a NumPy array for a backend's
-    input checks; a ragged nesting is a ShapeError (NumPy raises a bare ValueError)."""
+    input checks; a ragged nesting is a ShapeError (NumPy raises a bare ValueError). Big-endian
+    numbers come back in native byte order (the same values: '>f8' was refused as not float64)."""
     try:
-        return np.asarray(x)
+        a = np.asarray(x)
     except ValueError as exc:
         raise ShapeError(f"{name} must be a regular array (equal-length rows), got a ragged nesting: {exc}") from None
+    return a.astype(a.dtype.newbyteorder("=")) if a.dtype.kind in "fiub" and not a.dtype.isnative else a
 
 
 def int64_indices(a: np.ndarray, name: str) -> np.ndarray:
@@ -196,11 +198,24 @@ def image_size_pair(image_size, owner: str) -> tuple[int, int]:
     return tuple(_number(owner, n, v, positive=True, integer=True) for n, v in (("image height", H), ("image width", W)))
 
 
+def tau_floor(dtype: str) -> float:
+    """The smallest τ (screen units) a ``dtype`` render accepts: 16·sqrt(smallest normal number),
+    ~1.7e-18 in float32 and ~2.4e-153 in float64. Below it −d/τ² (the argument's derivative in τ)
+    overflows for distances d of a few screen units, and 0·inf made dL/dτ NaN (float32 τ = 3e-20,
+    float64 1e-156), even where no pixel depends on τ."""
+    return 16.0 * math.sqrt(float(np.finfo(dtype).tiny))
+
+
 def _check_params_fit(settings, dtype: str, tau_value: float) -> None:
     """ParameterError for τ or a distribution or T-conorm parameter (a number) that a float32 render
     cannot hold: beyond float32's range or below its smallest normal number in magnitude (frank
     p = 1e40 rendered alpha −inf, p = 1e-39 +inf; gamma shape = 1e-40 is a subnormal float32;
-    τ = 1e-39 gave gamma NaN gradients)."""
+    τ = 1e-39 gave gamma NaN gradients), and a τ below :func:`tau_floor` of either dtype."""
+    floor = tau_floor(dtype)
+    if not tau_value >= floor:
+        raise ParameterError(f"Renderer parameter tau={tau_value:g} is below {floor:.3g}, the smallest τ whose "
+                             f"gradient ∂(d/τ)/∂τ = −d/τ² stays finite in {dtype} (it gave NaN gradients)"
+                             + ("; render in float64 (float64 vertices)" if dtype == "float32" else ""))
     if dtype != "float32":
         return
     info = np.finfo(np.float32)
@@ -210,10 +225,9 @@ def _check_params_fit(settings, dtype: str, tau_value: float) -> None:
                 raise ParameterError(f"{owner} {setting.name!r} parameter {name}={value:g} is beyond what float32 "
                                      f"holds (normal numbers {info.tiny:.3g} ... {info.max:.3g} in magnitude): "
                                      f"render in float64 (float64 vertices)")
-    # (a subnormal τ overflowed d/τ to inf: NaN gradients of gamma, torch)
-    if not float(info.tiny) <= tau_value <= float(info.max):
-        raise ParameterError(f"Renderer parameter tau={tau_value:g} is beyond what float32 holds (normal numbers "
-                             f"{info.tiny:.3g} ... {info.max:.3g}): render in float64 (float64 vertices)")
+    if not tau_value <= float(info.max):
+        raise ParameterError(f"Renderer parameter tau={tau_value:g} is beyond what float32 holds (at most "
+                             f"{info.max:.3g}): render in float64 (float64 vertices)")
     shift = settings.distribution.shift
     if isinstance(shift, numbers.Real) and not abs(shift) <= float(info.max):
         raise ParameterError(f"distribution {settings.distribution.name!r} parameter shift={shift:g} is beyond what "
@@ -317,7 +331,8 @@ class Renderer:
         scale of the distribution, in screen units (1 unit = H/2 pixels; for ``squared``
         distributions in squared units, √τ the length: the default 0.01 is then a scale of 0.1,
         ten times the plain default's; ``gendr render --squared`` uses 1e-4, SoftRas' σ). A tensor
-        that requires grad gets a gradient.
+        that requires grad gets a gradient. A render refuses τ below :func:`tau_floor` of its
+        dtype (~1.7e-18 in float32).
     image_size : (H, W) or int
     backend : str
         a registered backend (``gendr.available_backends()``), default ``"torch"``.

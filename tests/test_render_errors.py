@@ -504,16 +504,34 @@ def test_parameters_float32_cannot_hold_are_an_error(backend, dist, tcn, words):
 
 
 @pytest.mark.parametrize("backend", _backends())
-@pytest.mark.parametrize("tau", [1e-39, 1e39])
-def test_tau_float32_cannot_hold_is_an_error(backend, tau):
-    """τ follows the parameters' rule: a float32 render refuses one outside float32's normal range
-    (a subnormal τ overflowed d/τ to +inf: reversed gamma(2) gave 111 NaN vertex gradients in a
-    16² torch render); float64 renders it."""
+@pytest.mark.parametrize("tau,words", [(1e-39, "tau=1e-39 is below 1.7"), (1e39, "tau=1e+39 is beyond what float32 holds")])
+def test_tau_float32_cannot_hold_is_an_error(backend, tau, words):
+    """τ follows the parameters' rule: a float32 render refuses one outside float32's range, and
+    one below tau_floor (a subnormal τ overflowed d/τ to +inf: reversed gamma(2) gave 111 NaN vertex
+    gradients in a 16² torch render); float64 renders both."""
     r = renderer(backend=backend, distribution=gendr.distribution("gamma", shape=2.0, reversed=True), tau=tau)
-    with pytest.raises(ParameterError, match=re.escape(f"tau={tau:g} is beyond what float32 holds")):
+    with pytest.raises(ParameterError, match=re.escape(words)):
         r.render(V.float(), F, CAM)
     alpha = r.to_numpy(r.render(V, F, CAM))[..., 3]
     assert np.isfinite(alpha).all() and alpha.min() >= 0.0 and alpha.max() <= 1.0
+
+
+@pytest.mark.parametrize("backend", _backends())
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_tau_below_its_floor_is_an_error_and_above_it_gradients_are_finite(backend, dtype):
+    """Below gendr.renderer.tau_floor (16·sqrt(tiny)) −d/τ² overflows and torch's dL/dτ was NaN
+    (float32 τ = 3e-20, float64 1e-156: 0·inf, even with no pixel depending on τ): now a
+    ParameterError. At twice the floor every gradient is finite."""
+    from gendr.renderer import tau_floor
+    floor = tau_floor(str(dtype).replace("torch.", ""))
+    assert floor == pytest.approx({torch.float32: 1.74e-18, torch.float64: 2.39e-153}[dtype], rel=1e-2)
+    with pytest.raises(ParameterError, match=re.escape(f"tau={floor / 10:g} is below {floor:.3g}")):
+        renderer(backend=backend, tau=floor / 10).render(V.to(dtype), F, CAM)
+    tau = torch.tensor(2 * floor, dtype=torch.float64, requires_grad=True)
+    v = V.to(dtype).clone().requires_grad_(True)
+    r = renderer(backend=backend, tau=tau)
+    r.render(v, F, CAM)[..., 3].sum().backward()
+    assert torch.isfinite(tau.grad) and torch.isfinite(v.grad).all()
 
 
 @pytest.mark.parametrize("backend", _backends())

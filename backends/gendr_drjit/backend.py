@@ -159,8 +159,12 @@ def _bridge():
                 return res.to(ctx.device) if ctx.device is not None else res
 
             @staticmethod
-            @torch.autograd.function.once_differentiable
             def backward(ctx, grad):
+                if torch.is_grad_enabled() and (grad.requires_grad or bool(grad.any())):
+                    # create_graph=True (once_differentiable gave a first derivative whose derivative
+                    # autograd took as 0 where the incoming gradient is constant)
+                    raise NotImplementedError("gendr's renders have first derivatives only: "
+                                              "backward(create_graph=True) (double backward, Hessians) is not supported")
                 T, inputs = ctx.T, ctx.inputs
                 if not dr.grad_enabled(ctx.output):  # zeros, as the torch backend's graph gives
                     return (None, None, *[torch.zeros(shape, dtype=dt, device=dev) if need else None

@@ -1254,7 +1254,7 @@ def alpha_archimedean(s, fc, T, ops, pix, pix1, tau, resid=None):
     if tcn.kind == MEAN:  # no saturation, no singular point: A = S/F
         return pix.to_image([tcn.from_sum(ops, Sr, fc.F) for Sr in S])
     for Sr, nr in zip(S, nsat):
-        pos = Sr > 0.0
+        pos = Sr >= T.tiny  # (a subnormal S counts as 0, flushed or not: as the torch backend)
         Ar = dr.select(pos, tcn.from_generator_sum(ops, dr.select(pos, Sr, 1.0)), 0.0)
         A.append(dr.select(nr > 0, 1.0, Ar))
     return pix.to_image(A)

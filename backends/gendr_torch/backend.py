@@ -61,8 +61,10 @@ class TorchBackend:
             # colours (cast to the vertices' dtype) may be given as integers; geometry may not
             if not (a.dtype in (np.float32, np.float64) or (like is not None and a.dtype.kind in "iu")):
                 raise DTypeError(f"{name} must be float32 or float64, got dtype {a.dtype}")
-            if not a.flags.writeable:  # torch warns on read-only memory; never write into the caller's array
-                a = a.copy()
+            # torch warns on read-only memory and refuses negative strides (a[::-1]); a copy, so
+            # that nothing writes into the caller's array
+            if not a.flags.writeable or any(st < 0 for st in a.strides):
+                a = np.array(a, order="C")
             t = torch.as_tensor(a, device=self.device)
         if like is not None:
             return t.to(dtype=like.dtype, device=like.device)

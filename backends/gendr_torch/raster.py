@@ -27,7 +27,7 @@ from gendr.renderer import (FAR_CORNER, LAMBERT_KINK_ULPS, ZERO_AREA_ULPS, check
 from gendr.tconorms import MAX, MEAN
 
 from .fused import FusedChains
-from .ops import torch_ops as ops
+from .ops import first_order_only, torch_ops as ops
 
 
 # ---------------------------------------------------------------------------------------------
@@ -38,6 +38,8 @@ def camera_tensors(camera, dtype, device):
     returns (P, batch) with P's arrays shaped [Bc, 1]."""
     P, batch, values = {}, 1, {}
     for name, (value, kind) in camera.array_params().items():
+        if isinstance(value, np.ndarray):  # (torch.as_tensor refuses negative strides: a[::-1])
+            value = np.ascontiguousarray(value)
         t = value.to(device=device, dtype=dtype) if isinstance(value, torch.Tensor) else torch.as_tensor(value, dtype=dtype, device=device)
         if kind == VEC3:
             if t.shape == (3,):
@@ -617,7 +619,9 @@ def _from_sum(tcn, S, nsat, n_faces):
     """Alpha from the per-pixel sums: saturated pixels 1; the mean S/F has no singular point."""
     if tcn.kind == MEAN:
         return tcn.from_sum(ops, S, n_faces)
-    pos = S > 0
+    # a subnormal S counts as 0, as in Dr.Jit (whose kernels flush it): dA/dS = S^(1/p − 1)/p of
+    # yager, aczel_alsina, dombi with p ≳ 11 overflowed there into NaN vertex gradients (float32)
+    pos = S >= torch.finfo(S.dtype).tiny
     A = torch.where(pos, tcn.from_generator_sum(ops, torch.where(pos, S, 1.0)), 0.0)
     return torch.where(nsat > 0, 1.0, A)
 
@@ -678,6 +682,7 @@ class SoftAlpha(torch.autograd.Function):
         return A
 
     @staticmethod
+    @first_order_only  # (its analytic backward has no graph)
     def backward(ctx, gA):
         X, Y, tau, acc, A, *tparams = ctx.saved_tensors
         plan = ctx.plan
