@@ -141,10 +141,13 @@ def test_nearly_degenerate_but_defined_views_render(backend):
 
 def test_the_old_failures_are_typed_now():
     """up along the view failed with IndexError deep inside the torch backend; eye == at rendered."""
-    for make in (lambda: P(eye=torch.tensor([0.0, 3.0, 0.0], dtype=torch.float64)),
-                 lambda: P(eye=torch.zeros(3, dtype=torch.float64))):
-        with pytest.raises(ValueError):
+    for make, match in ((lambda: P(eye=torch.tensor([0.0, 3.0, 0.0], dtype=torch.float64)),
+                         r"up=\(0, 1, 0\) is parallel to the viewing direction from eye=\(0, 3, 0\) to at=\(0, 0, 0\)"),
+                        (lambda: P(eye=torch.zeros(3, dtype=torch.float64)),
+                         r"eye=\(0, 0, 0\) equals at=\(0, 0, 0\)")):
+        with pytest.raises(DegenerateCameraError, match=match) as e:
             gendr.Renderer(image_size=(8, 10)).render(V, F, make())
+        assert type(e.value) is DegenerateCameraError and isinstance(e.value, ValueError)
 
 
 def test_bool_complex_and_empty_camera_values():

@@ -400,3 +400,99 @@ def test_an_option_of_the_other_camera_is_an_error(tmp_path, capsys, argv, words
     code, _, err = _run(capsys, "render", "icosphere", "--size", "8", *argv, "-o", str(tmp_path / "a.png"))
     assert code == 2 and words in err
     assert not (tmp_path / "a.png").exists()
+
+
+# ------------------------------------------------------------------------------------------------
+# gendr render: every option reaches the image
+# ------------------------------------------------------------------------------------------------
+#: the documented defaults of `gendr render` (its --help), restated here and not read from gendr.cli
+CLI_DEFAULTS = dict(azimuth=30.0, elevation=20.0, distance=3.0, fov=40.0, ortho_scale=1.1)
+#: (argv beyond `gendr render tetrahedron -o X --size 32 --tau 0.05`, what the image must then be:
+#: Renderer keywords, camera keywords, vertex colour mode). τ = 0.05 (0.8 px at H = 32) so that the
+#: coverage options (--shift, --eps, --reversed) move the soft edges by far more than 1/255.
+CLI_CASES = {
+    "defaults": ([], {}, {}, "white"),
+    "orthographic": (["--camera", "orthographic"], {}, dict(camera="orthographic"), "white"),
+    "orthographic-scale-nonsquare": (["--camera", "orthographic", "--ortho-scale", "0.8", "--size", "24x32"],
+                                     dict(image_size=(24, 32)), dict(camera="orthographic", ortho_scale=0.8), "white"),
+    "view": (["--azimuth", "-70", "--elevation", "35", "--distance", "2.5", "--fov", "55"], {},
+             dict(azimuth=-70.0, elevation=35.0, distance=2.5, fov=55.0), "white"),
+    "squared": (["--squared", "--tau", "0.003"], dict(distribution=dict(name="logistic", squared=True), tau=0.003),
+                {}, "white"),
+    "reversed": (["--distribution", "gumbel_max", "--reversed"],
+                 dict(distribution=dict(name="gumbel_max", reversed=True)), {}, "white"),
+    "shift": (["--shift", "1.5"], dict(distribution=dict(name="logistic", shift=1.5)), {}, "white"),
+    "eps": (["--eps", "0.3"], dict(eps=0.3), {}, "white"),
+    "tconorm": (["--tconorm", "yager", "--tconorm-param", "p=0.5"], dict(tconorm=dict(name="yager", p=0.5)), {},
+                "white"),
+    "colors-position": (["--colors", "position"], {}, {}, "position"),
+    "colors-normals": (["--colors", "normals"], {}, {}, "normals"),
+    "blend-hard": (["--blend", "hard", "--colors", "position"], dict(blend="hard"), {}, "position"),
+    "blend-none": (["--blend", "none"], dict(blend=None), {}, "white"),
+}
+
+
+def _expected_cli_image(renderer_kw, camera_kw, colors):
+    """The image `gendr render tetrahedron` should write, rendered directly through the Python API
+    (float32, torch, as the command's --dtype and --backend defaults), with the camera built from
+    the documented meaning of the options, not by gendr.cli's helpers: the eye on the orbit
+    (distance·(cos e·sin a, sin e, cos e·cos a), looking at the origin), a vertical fov of --fov,
+    or an orthographic view of half height --ortho-scale and half width --ortho-scale·W/H."""
+    kw = dict(distribution=dict(name="logistic"), tconorm=dict(name="probabilistic"), tau=0.05,
+              image_size=(32, 32), eps=1e-4, blend="softmax")
+    kw.update(renderer_kw)
+    dist, tcn = dict(kw.pop("distribution")), dict(kw.pop("tconorm"))
+    r = gendr.Renderer(gendr.distribution(dist.pop("name"), **dist), gendr.tconorm(tcn.pop("name"), **tcn),
+                       backend="torch", **kw)
+    c = {**CLI_DEFAULTS, "camera": "perspective", **camera_kw}
+    a, e = np.radians(c["azimuth"]), np.radians(c["elevation"])
+    eye = c["distance"] * np.array([np.cos(e) * np.sin(a), np.sin(e), np.cos(e) * np.cos(a)])
+    H, W = kw["image_size"]
+    if c["camera"] == "orthographic":
+        cam = gendr.OrthographicCamera(eye=eye, ymag=c["ortho_scale"], xmag=c["ortho_scale"] * W / H)
+    else:
+        cam = gendr.PerspectiveCamera(eye=eye, fov_y=c["fov"])
+    mesh = gendr.scenes.get_scene("tetrahedron")
+    v, f = mesh.vertices, mesh.faces
+    if colors == "white":
+        vc = None
+    elif colors == "position":  # the position in the bounding box, per axis
+        vc = (v - v.min(0)) / (v.max(0) - v.min(0))
+    else:  # 0.5 + 0.5·(unit area-weighted vertex normal), summed here from the faces' cross products
+        fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+        vn = np.zeros_like(v)
+        for k in range(3):
+            np.add.at(vn, f[:, k], fn)
+        vc = 0.5 + 0.5 * vn / np.linalg.norm(vn, axis=1, keepdims=True)
+    img = r.render(v.astype(np.float32), f, cam, vertex_colors=None if vc is None else vc.astype(np.float32))
+    return np.asarray(r.to_numpy(img), dtype=np.float64)[0]
+
+
+@pytest.mark.parametrize("case", list(CLI_CASES))
+def test_render_options_reach_the_image(tmp_path, capsys, case):
+    """`gendr render` with one non-default option writes the image the Python API renders with
+    that setting. Catches an option the command parses but does not pass on (ignoring --camera
+    orthographic, --ortho-scale, --squared, --reversed, --shift, --eps, --colors, --tconorm-param,
+    the view options, or a --blend replaced by the default softmax): _alpha_checks-style tests only
+    see that *some* image was written.
+
+    Tolerance: the PNG holds 8-bit values, so it is round(255·value) (to_uint8): at most 0.5/255
+    from the rendered value; the direct render differs from the command's only by float32 rounding
+    (~1e-6: the camera is built here from an eye position, the command's from an Orbit), which can
+    push a value across a rounding boundary, so each channel may differ by one 8-bit step, 1/255.
+    Each option changes the image by far more than that (asserted against the all-defaults image,
+    so that the comparison cannot pass for an option that has no visible effect in this scene)."""
+    argv, renderer_kw, camera_kw, colors = CLI_CASES[case]
+    out = tmp_path / "x.png"
+    code, _, err = _run(capsys, "render", "tetrahedron", "-o", str(out), "--size", "32", "--tau", "0.05", *argv)
+    assert code == 0, err
+    got = read_png(out).astype(np.float64) / 255.0
+    want = _expected_cli_image(renderer_kw, camera_kw, colors)
+    assert got.shape == want.shape
+    assert want[..., 3].max() > 0.99 and want[..., 3].min() < 0.01  # the mesh is in view, not filling it
+    diff = np.abs(got - np.clip(want, 0.0, 1.0)).max()
+    assert diff <= 1.0 / 255.0 + 1e-9, f"gendr render {' '.join(argv)}: the PNG differs from the API's image by {diff * 255:.1f}/255"
+    if case != "defaults":
+        base = _expected_cli_image({}, {}, "white")
+        if base.shape == want.shape:
+            assert np.abs(base - want).max() > 10.0 / 255.0, f"{argv} does not change this image: the case tests nothing"

@@ -1,7 +1,9 @@
 """gendr_experiments.figures and the `gendr experiment` command line."""
+import csv
 import json
 
 import numpy as np
+import pytest
 
 import gendr
 from gendr.cli import main as gendr_main
@@ -10,14 +12,34 @@ from gendr_experiments.figures import (grid_labels, make_figures, score_matrix, 
 
 
 def _fake_rows(n=60, seed=0):
+    """n random grid instances × τ {0.1, 0.01} × lr {0.05, 0.02} × seeds {0, 1}: random metrics and
+    seconds (a setting's seeds are averaged, its best τ and lr differ between instances)."""
     rng = np.random.default_rng(seed)
     grid = gendr.paper_grid()
     rows = []
     for inst in rng.choice(len(grid), n, replace=False):
         for tau in (0.1, 0.01):
-            rows.append(dict(key=f"{inst}-{tau}", experiment="shape", instance=int(inst), label=grid[inst].name,
-                             tau=tau, lr=0.05, seed=0, metric=float(rng.uniform()), seconds=1.0, status="ok"))
+            for lr in (0.05, 0.02):
+                for sd in (0, 1):
+                    rows.append(dict(key=f"{inst}-{tau}-{lr}-{sd}", experiment="shape", instance=int(inst),
+                                     label=grid[inst].name, tau=tau, lr=lr, seed=sd, metric=float(rng.uniform()),
+                                     seconds=float(rng.uniform(0.5, 2.0)), status="ok"))
     return rows
+
+
+def _expected_best(rows):
+    """instance -> the best setting, computed here: the (τ, lr) of the lowest mean metric over its seeds
+    (docs/experiments.md: a shape score is the mean hard IoU loss), with the mean seconds and the run count."""
+    groups = {}
+    for r in rows:
+        groups.setdefault((r["instance"], r["tau"], r["lr"]), []).append(r)
+    best = {}
+    for (inst, tau, lr), grp in groups.items():
+        score = sum(r["metric"] for r in grp) / len(grp)
+        if inst not in best or score < best[inst]["score"]:
+            best[inst] = dict(label=grp[0]["label"], tau=tau, lr=lr, score=score, n=len(grp),
+                              seconds=sum(r["seconds"] for r in grp) / len(grp))
+    return best
 
 
 def test_score_matrix_places_instances():
@@ -39,6 +61,51 @@ def test_figures_written(tmp_path):
     for p in written:
         assert p.stat().st_size > 100
     assert len(top_fraction({i: {"score": float(i)} for i in range(50)}, 0.1)) == 5
+    expected = _expected_best(rows)
+    assert len(expected) == 60 and len({(b["tau"], b["lr"]) for b in expected.values()}) == 4  # all 4 win somewhere
+    ranked = sorted(expected, key=lambda i: expected[i]["score"])
+    assert top_fraction(expected, 0.1) == ranked[:6]  # top 10 % of 60, best first
+
+    # shape_best.csv: one row per instance, its best setting. Scores are written to 6 significant
+    # digits (rel 1e-5 covers the rounding, 5e-6), seconds to 3 decimals; τ and lr as Python writes
+    # floats (exact).
+    with open(tmp_path / "shape_best.csv", newline="") as f:
+        reader = csv.DictReader(f)
+        assert reader.fieldnames == ["instance", "label", "tau", "lr", "score", "mean_metric", "n", "seconds_per_run"]
+        table = list(reader)
+    assert sorted(int(r["instance"]) for r in table) == sorted(expected)
+    for r in table:
+        b = expected[int(r["instance"])]
+        assert r["label"] == b["label"]
+        assert (float(r["tau"]), float(r["lr"])) == (b["tau"], b["lr"]), (r, b)
+        assert float(r["score"]) == pytest.approx(b["score"], rel=1e-5, abs=1e-12), (r, b)
+        assert float(r["mean_metric"]) == pytest.approx(b["score"], rel=1e-5, abs=1e-12), (r, b)
+        assert int(r["n"]) == b["n"] == 2
+        assert float(r["seconds_per_run"]) == pytest.approx(b["seconds"], abs=5e-4 + 1e-9)
+
+    # shape_marginals.csv (docs/experiments.md §4): per distribution row (plain and squared apart) and
+    # per T-conorm column (both variants), the number of instances run and the mean, median and
+    # minimum of their best score. The grid is distribution-major: index = (row·2 + squared)·27 + column.
+    dl, tl = grid_labels()
+    grid = gendr.paper_grid()
+    want = {}
+    for inst, b in expected.items():
+        d, sq, t = inst // (2 * len(tl)), (inst // len(tl)) % 2, inst % len(tl)
+        assert grid[inst].distribution.squared == bool(sq)
+        want.setdefault(("distribution", dl[d], ("plain", "squared")[sq]), []).append(b["score"])
+        want.setdefault(("tconorm", tl[t], "both"), []).append(b["score"])
+    assert max(len(v) for v in want.values()) >= 3  # mean, median, min (and max) then differ
+    with open(tmp_path / "shape_marginals.csv", newline="") as f:
+        reader = csv.DictReader(f)
+        assert reader.fieldnames == ["kind", "label", "variant", "n", "mean", "median", "min"]
+        marg = {(r["kind"], r["label"], r["variant"]): r for r in reader}
+    assert set(marg) == set(want)
+    for k, scores in want.items():  # written to 4 decimals: half a unit of the last place
+        r = marg[k]
+        assert int(r["n"]) == len(scores), k
+        assert float(r["mean"]) == pytest.approx(float(np.mean(scores)), abs=5e-5 + 1e-9), (k, r, scores)
+        assert float(r["median"]) == pytest.approx(float(np.median(scores)), abs=5e-5 + 1e-9), (k, r, scores)
+        assert float(r["min"]) == pytest.approx(min(scores), abs=5e-5 + 1e-9), (k, r, scores)
 
 
 def test_gif(tmp_path):

@@ -454,3 +454,143 @@ def test_load_textured_glb_roundtrip(tmp_path):
     # GLB stores positions and uvs as float32: colours move by ~1e-7 at most (a mirrored or
     # misread texture moves them by whole texel differences, ~0.1 here)
     np.testing.assert_allclose(_np(r, a), _np(r, b), atol=1e-6)
+
+
+# --------------------------------------------------------------------------------------------
+# values checked against formulas computed here (no backend output used as the expectation)
+# --------------------------------------------------------------------------------------------
+#: a camera whose view frame is not the world frame (a normal reported in view space, or with axes
+#: mixed up, differs from the world-space one)
+_TILT_CAM = gendr.orbit_camera(-25.0, 15.0, 3.0, fov_y=45.0)
+#: a triangle whose unit normal has three distinct components, |n_x| != |n_y| != |n_z|
+_TILTED = np.array([[-0.8, -0.6, 0.3], [0.9, -0.4, -0.2], [0.1, 0.8, 0.1]])
+
+
+def _inside(v, f, camera, size, margin=1e-6):
+    """(signed distance d [F, H, W], barycentrics [F, H, W, 3]) from the naive reference's own
+    geometry (tests/naive_reference.py: clipping, point-to-segment distances, ray–plane
+    barycentrics), and the pixels whose centre lies inside exactly one face by more than ``margin``
+    screen units (away from edges, where a pixel could go to either face)."""
+    from naive_reference import pixel_face_geometry
+    d, _, bary = pixel_face_geometry(torch.tensor(v), torch.tensor(np.asarray(f)), camera, size)
+    d, bary = d.numpy()[0], bary.numpy()[0]
+    inside = np.nan_to_num(d, nan=-1.0) > margin
+    return d, bary, inside, inside.sum(0) == 1
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("winding", ["ccw", "cw"])
+def test_gbuffer_normal_of_a_tilted_triangle(backend, winding):
+    """One flat triangle: every vertex normal is its face normal, so the G-buffer normal must be
+    (v1 − v0) × (v2 − v0) normalised, in world space (docs/conventions.md, G-buffers), at every
+    covered pixel; the reversed winding flips it (a clockwise face seen from the camera points away
+    from it). Catches swapped or negated components, view-space normals, a normal taken from the
+    other winding. Tolerance 1e-12 (float64): the interpolation of three equal unit vectors,
+    renormalised, is exact up to rounding."""
+    _backend_ok(backend)
+    f = np.array([[0, 1, 2]] if winding == "ccw" else [[0, 2, 1]])
+    v = _TILTED
+    n = np.cross(v[f[0, 1]] - v[f[0, 0]], v[f[0, 2]] - v[f[0, 0]])
+    n /= np.linalg.norm(n)
+    r = gendr.Renderer(image_size=(H, W), backend=backend)
+    g = r.rasterize(v, f, _TILT_CAM)
+    fid, normal = _np(r, g.face_id)[0], _np(r, g.normal)[0]
+    vis = fid == 0
+    assert vis.sum() > 60
+    np.testing.assert_allclose(normal[vis], np.broadcast_to(n, normal[vis].shape), rtol=0, atol=1e-12)
+    assert (normal[~vis] == 0).all()
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_gbuffer_normal_interpolates_vertex_normals(backend):
+    """A fold of two triangles sharing an edge (a roof): the shared corners' normals are the
+    area-weighted sums of both faces' (v1 − v0) × (v2 − v0), the others their own face's; the
+    G-buffer normal at a pixel is Σ b_k·n̂_k over the visible face's corners, renormalised, with the
+    perspective-correct barycentrics b (taken from the naive reference's ray–plane intersection),
+    world space. Catches swapped components, face normals in place of the interpolated ones, an
+    interpolation with the wrong corners or weights. Tolerance 1e-10: float64 rounding of the
+    barycentrics (~1e-15) times normals of norm 1."""
+    _backend_ok(backend)
+    v = np.array([[-0.9, -0.7, 0.0], [0.8, -0.6, 0.1], [0.0, 0.1, 0.6], [-0.2, 0.9, -0.3]])
+    f = np.array([[0, 1, 2], [0, 2, 3]])
+    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    vn = np.zeros_like(v)
+    for k in range(3):
+        np.add.at(vn, f[:, k], fn)
+    vn /= np.linalg.norm(vn, axis=1, keepdims=True)
+    assert np.abs(vn[0] - vn[1]).max() > 0.3 and np.abs(vn[3] - vn[2]).max() > 0.3  # it does bend
+    r = gendr.Renderer(image_size=(H, W), backend=backend)
+    g = r.rasterize(v, f, _TILT_CAM)
+    fid, normal = _np(r, g.face_id)[0], _np(r, g.normal)[0]
+    d, bary, inside, one = _inside(v, f, _TILT_CAM, (H, W))
+    checked = 0
+    for k in range(2):
+        sel = one & inside[k]
+        assert (fid[sel] == k).all()
+        want = (bary[k][sel][..., None] * vn[f[k]]).sum(-2)
+        want /= np.linalg.norm(want, axis=-1, keepdims=True)
+        np.testing.assert_allclose(normal[sel], want, rtol=0, atol=1e-10)
+        checked += sel.sum()
+    assert checked > 80
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("blend", ["hard", "softmax"])
+def test_textured_shading_is_texture_times_lambert(backend, blend):
+    """The documented textured colour, texture(uv)·(ambient + diffuse·max(0, n̂·(−l̂))), at every
+    pixel well inside one tilted flat triangle (its vertex normals are its face normal, so Lambert
+    is one number here, computed from the corners and the light): uv from the naive reference's
+    perspective-correct barycentrics, texture(uv) from gendr.textures.sample_numpy (float64
+    NumPy). Both blends: at these pixels the softmax's background weight exp((ε − z̃)/γ) is ~e^-9000
+    at the default γ = 1e-4, so it returns the face's colour too. Catches a backend that drops the
+    lighting factor for textured faces (or applies it twice, or lights with another light).
+    Tolerance 1e-10: float64, bilinear weights moved by rounding of the uvs (~1e-15) times texel
+    differences < 1."""
+    _backend_ok(backend)
+    v, f = _TILTED, np.array([[0, 1, 2]])
+    uvs = np.array([[0.1, 0.15], [0.95, 0.3], [0.4, 0.9]])
+    tex = scenes.checker_texture(12, 18, square=3)
+    ambient, diffuse, light = 0.25, 0.6, np.array([0.5, -0.3, -1.0])
+    n = np.cross(v[1] - v[0], v[2] - v[0])
+    lam = max(0.0, float(n @ -light) / np.linalg.norm(n) / np.linalg.norm(light))
+    shade = ambient + diffuse * lam
+    assert 0.3 < lam < 0.95 and abs(shade - 1.0) > 0.1  # lit partly: the factor is not 1
+    r = gendr.Renderer("logistic", "probabilistic", tau=0.002, image_size=(H, W), backend=backend, blend=blend,
+                       eps=1e-6, ambient=ambient, diffuse=diffuse, light_direction=tuple(light),
+                       background=(0.9, 0.1, 0.5))
+    img = _np(r, r.render(v, f, _TILT_CAM, texture=tex, uvs=uvs))[0]
+    d, bary, inside, one = _inside(v, f, _TILT_CAM, (H, W), margin=0.05)  # 0.05 = 25τ: coverage 1 − 1e-11
+    sel = one & inside[0]
+    assert sel.sum() > 40
+    uv = (bary[0][sel][..., None] * uvs[f[0]]).sum(-2)
+    want = sample_numpy(tex, uv) * shade
+    np.testing.assert_allclose(img[sel][:, :3], want, rtol=0, atol=1e-10)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("blend", ["hard", "softmax"])
+def test_constant_texture_renders_like_vertex_colours(backend, blend):
+    """A texture of one colour c shades every pixel as vertex colours c do (texture(uv) = c for any
+    uv), under the same non-default light and blend, at every pixel: the smooth (interpolated)
+    Lambert factor of a sphere, soft edges, and with γ = 0.05 the softmax mixing faces at different
+    depths and the background. The vertex-colour path is checked against the naive reference
+    (test_renderer_reference.py), so this pins the textured path's lighting and blending to it.
+    Catches textured faces rendered without the lighting factor (the image would be c instead of
+    c·(ambient + diffuse·lambert)), lit per face instead of per vertex, or weighed differently in the
+    blend. Tolerance 1e-12: float64; the two paths multiply the same numbers in another order."""
+    _backend_ok(backend)
+    m = scenes.icosphere(1)
+    c = np.array([0.8, 0.55, 0.3])
+    tex = np.broadcast_to(c, (5, 7, 3)).copy()
+    uvs = np.random.default_rng(3).uniform(-0.5, 1.5, (len(m.vertices), 2))  # any uv samples c
+    r = gendr.Renderer("logistic", "probabilistic", tau=0.03, image_size=(H, W), backend=backend, blend=blend,
+                       gamma=0.05, ambient=0.2, diffuse=0.7, light_direction=(0.6, -0.4, -1.0),
+                       background=(0.1, 0.2, 0.9))
+    textured = _np(r, r.render(m.vertices, m.faces, CAM, texture=tex, uvs=uvs))[0]
+    coloured = _np(r, r.render(m.vertices, m.faces, CAM, vertex_colors=np.broadcast_to(c, m.vertices.shape).copy()))[0]
+    np.testing.assert_allclose(textured, coloured, rtol=0, atol=1e-12)
+    # the lighting does vary over the image (so a missing factor shows), and differs from 1
+    covered = coloured[..., 3] > 0.99
+    assert covered.sum() > 100
+    ratio = coloured[covered][:, 0] / c[0]
+    assert ratio.min() < 0.5 and ratio.max() - ratio.min() > 0.3

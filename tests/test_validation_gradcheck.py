@@ -59,6 +59,7 @@ def test_other_backends_gradients(backend):
 
 def test_lit_vertex_gradients(adapter):
     res, _ = gc.check_instance(adapter, gendr.paper_grid()[271], params=("vertices",))
+    assert [r.param for r in res] == ["vertices"]  # one check per parameter asked for: none is vacuous
     assert all(r.passed for r in res), [(r.pixel_max, r.loss_err) for r in res]
 
 
@@ -91,4 +92,5 @@ def test_gradients_all_instances(adapter):
 def test_known_fd_limited_checks_pass_at_a_larger_step(adapter, index, param, monkeypatch):
     monkeypatch.setitem(gc.STEPS, param, 10 * gc.STEPS[param])
     res, _ = gc.check_instance(adapter, gendr.paper_grid()[index], params=(param,))
+    assert [r.param for r in res] == [param]  # the check ran (an empty list would pass below)
     assert all(r.passed for r in res), [(r.pixel_max, r.loss_err) for r in res]
