@@ -110,8 +110,8 @@ def test_committed_rows_have_not_drifted():
     assert len(rows) == 4 and {r["experiment"] for r in rows} == {"shape", "pose"}
     report = verify_rows(rows)
     assert len(report) == 4
-    # the look-at pose row fails every pair (metric 1, where no regression moves it): its median
-    # final error is what can drift
+    # the look-at pose row's residuals lie near the 3° success threshold: its median final error
+    # is checked beside its failure rate
     assert [v["residual_tolerance"] >= 0 for v in report if "residual_drift" in v] == [True]
     bad = [v for v in report if not v["ok"]]
     assert not bad, json.dumps(bad, indent=1)
@@ -119,9 +119,8 @@ def test_committed_rows_have_not_drifted():
 
 def test_verify_catches_a_pose_regression_the_failure_rate_cannot_show():
     """A look-at row stored with a median final error 2 degrees below what the code reaches (as if the
-    code had got worse) drifts, although its failure rate stays 1."""
+    code had got worse) drifts, although its failure rate is unchanged."""
     [row] = [r for r in load_rows(ROOT / "experiments" / "results" / "verify_rows.jsonl") if r["experiment"] == "pose"]
-    assert row["metric"] == 1.0
     worse = dict(row, residual_deg_median=row["residual_deg_median"] - 2.0)
     [v] = verify_rows([worse])
     assert v["drift"] == 0.0 and v["residual_drift"] > DRIFT_TOLERANCE["pose_residual"] and not v["ok"]
