@@ -60,6 +60,19 @@ def test_torch_softmax_rgb_hessian_vector_product():
     assert float(fd.abs().max()) > 0
 
 
+def test_torch_softmax_rgb_second_derivatives_refused_for_gamma():
+    """Gamma's CDF (a series) carries a first derivative only (ops.with_derivative), so even the
+    softmax RGB has no second derivative with a gamma distribution: NotImplementedError, as
+    docs/conventions.md says, never a Hessian-vector product that takes that part as 0."""
+    r = gendr.Renderer(gendr.distribution("gamma", shape=2.0), "probabilistic", tau=0.05, image_size=8,
+                       blend="softmax", gamma=0.05)
+    v = _verts().requires_grad_(True)
+    cols = torch.as_tensor(np.random.default_rng(0).random((6, 3)))
+    rgb = r.render(v, FACES, CAM, vertex_colors=cols)[..., 0].sum()
+    with pytest.raises(NotImplementedError, match="first derivatives only"):
+        torch.autograd.grad(rgb, v, create_graph=True)
+
+
 @pytest.mark.parametrize("backend", _backends())
 @pytest.mark.parametrize("name", ["yager", "aczel_alsina", "dombi"])
 def test_float32_large_p_sums_give_finite_gradients(backend, name):
@@ -79,7 +92,9 @@ def test_float32_large_p_sums_give_finite_gradients(backend, name):
 def test_numpy_inputs_with_reversed_strides_or_big_endian(backend):
     """np.flip'd vertices and colours and a reversed camera eye raised torch's raw ValueError
     ("At least one stride ... is negative"); big-endian float64 vertices ('>f8') were refused as not
-    float64 by both backends. Each now renders exactly as its native, contiguous copy."""
+    float64 by both backends, and torch refused a big-endian camera ("byte order different from the
+    native byte order") where Dr.Jit rendered it. Each now renders exactly as its native, contiguous
+    copy."""
     V = _verts().numpy()
     C = np.random.default_rng(0).random((6, 3))
     r = gendr.Renderer("logistic", "probabilistic", tau=0.05, image_size=8, backend=backend)
@@ -89,6 +104,8 @@ def test_numpy_inputs_with_reversed_strides_or_big_endian(backend):
         "big-endian": r.render(V.astype(">f8"), FACES.numpy(), CAM, vertex_colors=C.astype(">f8")),
         "reversed eye": r.render(V, FACES.numpy(), gendr.PerspectiveCamera(eye=np.array([3.0, 0.0, 0.0])[::-1],
                                                                           fov_y=40.0), vertex_colors=C),
+        "big-endian camera": r.render(V, FACES.numpy(), gendr.PerspectiveCamera(eye=np.array([0.0, 0.0, 3.0], ">f8"),
+                                                                                fov_y=np.array(40.0, ">f8")), vertex_colors=C),
     }
     for tag, img in got.items():
         np.testing.assert_array_equal(r.to_numpy(img), want, err_msg=tag)

@@ -23,7 +23,7 @@ from torch.utils.checkpoint import checkpoint
 from gendr.cameras import VEC3
 from gendr.errors import ShapeError
 from gendr.renderer import (FAR_CORNER, LAMBERT_KINK_ULPS, ZERO_AREA_ULPS, check_screen_reach,
-                            softmax_min_coverage)
+                            host_array, softmax_min_coverage)
 from gendr.tconorms import MAX, MEAN
 
 from .fused import FusedChains
@@ -38,8 +38,8 @@ def camera_tensors(camera, dtype, device):
     returns (P, batch) with P's arrays shaped [Bc, 1]."""
     P, batch, values = {}, 1, {}
     for name, (value, kind) in camera.array_params().items():
-        if isinstance(value, np.ndarray):  # (torch.as_tensor refuses negative strides: a[::-1])
-            value = np.ascontiguousarray(value)
+        if isinstance(value, np.ndarray):  # torch.as_tensor refuses negative strides and '>f8'
+            value = np.ascontiguousarray(host_array(value, f"camera parameter {name}"))
         t = value.to(device=device, dtype=dtype) if isinstance(value, torch.Tensor) else torch.as_tensor(value, dtype=dtype, device=device)
         if kind == VEC3:
             if t.shape == (3,):
