@@ -242,15 +242,16 @@ def from_pytorch3d_look_at(dist=1.0, elev=0.0, azim=0.0, *, fov=60.0, degrees=Tr
             return v
         return (np.asarray(v, dtype=float) if isinstance(v, (list, tuple)) else v) * (180.0 / math.pi)
     fov_d = to_deg(fov)
+    # checked here, in the caller's unit: converted, a bad fov would be named as a fov_y in degrees
+    # (past 180° the H > W conversion even makes it negative)
+    v = np.asarray(fov_d.detach().cpu() if hasattr(fov_d, "detach") else fov_d, dtype=float)
+    if not np.all((v > 0.0) & (v < 180.0)):
+        domain = "(0, 180) degrees" if degrees else "(0, π) radians"
+        raise ParameterError(f"from_pytorch3d_look_at parameter fov={fov!r} must be a field of view in {domain}")
     if image_size is not None:
         H, W = image_size_pair(image_size, "from_pytorch3d_look_at")
         if H > W:
             ratio = H / W
-            # checked here, since past 180° the conversion would make a bad fov a negative fov_y
-            v = np.asarray(fov_d.detach().cpu() if hasattr(fov_d, "detach") else fov_d, dtype=float)
-            if not np.all((v > 0.0) & (v < 180.0)):
-                raise ParameterError(f"from_pytorch3d_look_at parameter fov={fov!r} must be a field of view in "
-                                     f"(0, 180) degrees")
             if isinstance(fov_d, (int, float)):
                 fov_d = 2.0 * math.degrees(math.atan(math.tan(math.radians(fov_d) / 2.0) * ratio))
             else:

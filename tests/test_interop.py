@@ -200,6 +200,11 @@ def test_pytorch3d_eye_and_radians():
     # a bad fov is named as given, not as the fov_y it converts to for H > W (was "fov_y=-169.92")
     with pytest.raises(ParameterError, match=r"fov=200 must be a field of view in \(0, 180\) degrees"):
         interop.from_pytorch3d_look_at(fov=200, image_size=(32, 16))
+    # in radians, 4 rad = 229°: named in the unit given, whatever the image's shape (said "(0, 180)
+    # degrees" of fov=4.0 for H > W, and "fov_y=229.18" for H <= W)
+    for size in ((32, 16), (16, 32), None):
+        with pytest.raises(ParameterError, match=r"fov=4.0 must be a field of view in \(0, π\) radians"):
+            interop.from_pytorch3d_look_at(fov=4.0, degrees=False, image_size=size)
     a = interop.from_pytorch3d_look_at(2.0, math.radians(10), math.radians(50), fov=math.radians(50), degrees=False)
     b = interop.from_pytorch3d_look_at(2.0, 10.0, 50.0, fov=50.0)
     np.testing.assert_allclose(interop.project_points(a, pts, 16).numpy(), interop.project_points(b, pts, 16).numpy(),
