@@ -117,3 +117,13 @@ def require_finite(backend, a, name):
     if bad is not None:
         dtype = str(a.dtype).replace("torch.", "")
         raise InputValueError(f"{name} must be finite in {dtype} (the render dtype); {name}{list(bad[0])} = {bad[1]}")
+
+
+def refuse_second_derivatives(grads):
+    """NotImplementedError under ``create_graph=True`` unless every incoming gradient (torch
+    tensors, read by duck typing: this layer imports no array library) is a constant 0, e.g. the
+    alpha channel's where a loss reads only RGB. For the backends' analytic backward passes, which
+    have first derivatives only."""
+    if any(g is not None and (g.requires_grad or bool(g.any())) for g in grads):
+        raise NotImplementedError("gendr's renders have first derivatives only: backward(create_graph=True) "
+                                  "(double backward, Hessians) is not supported")

@@ -15,7 +15,7 @@ import numpy as np
 import drjit as dr
 
 from gendr.cameras import VEC3
-from gendr.errors import BackendUnavailableError, DTypeError, ParameterError, ShapeError
+from gendr.errors import BackendUnavailableError, DTypeError, ParameterError, ShapeError, refuse_second_derivatives
 from gendr.renderer import check_colour_dtype, host_array, int64_indices
 
 from . import raster
@@ -160,11 +160,8 @@ def _bridge():
 
             @staticmethod
             def backward(ctx, grad):
-                if torch.is_grad_enabled() and (grad.requires_grad or bool(grad.any())):
-                    # create_graph=True (once_differentiable gave a first derivative whose derivative
-                    # autograd took as 0 where the incoming gradient is constant)
-                    raise NotImplementedError("gendr's renders have first derivatives only: "
-                                              "backward(create_graph=True) (double backward, Hessians) is not supported")
+                if torch.is_grad_enabled():  # create_graph=True (once_differentiable gave a first derivative
+                    refuse_second_derivatives((grad,))  # whose derivative autograd took as 0)
                 T, inputs = ctx.T, ctx.inputs
                 if not dr.grad_enabled(ctx.output):  # zeros, as the torch backend's graph gives
                     return (None, None, *[torch.zeros(shape, dtype=dt, device=dev) if need else None

@@ -6,6 +6,7 @@ import math
 
 import torch
 
+from gendr.errors import refuse_second_derivatives
 from gendr.ops import select_both
 
 
@@ -22,14 +23,6 @@ def first_order_only(backward):
                 return backward(ctx, *grads)
         return backward(ctx, *grads)
     return checked
-
-
-def refuse_second_derivatives(grads):
-    """NotImplementedError under create_graph=True unless every incoming gradient is a constant 0
-    (e.g. the alpha channel's, where a loss reads only RGB)."""
-    if any(g is not None and (g.requires_grad or bool(g.any())) for g in grads):
-        raise NotImplementedError("gendr's renders have first derivatives only: backward(create_graph=True) "
-                                  "(double backward, Hessians) is not supported")
 
 
 class _WithDerivative(torch.autograd.Function):
