@@ -32,8 +32,9 @@ Numerical contract of the archimedean entries (float32 and float64, NumPy and to
   p > 30 (in float64 only when (x/(1 − x))^p, (1 − x)^p or (−log(1 − x))^p really exceeds 1.8e308).
   frank's generator and inverse are accurate for any p in float64 and for 1e-37 < p < 1e37 in
   float32 (the constants p − 1 and 1/p − 1 must be finite). yager's x^p underflows in float32 for
-  large p (p = 50: x = 0.17 gives 3e-39, subnormal, and Dr.Jit's kernels may flush it to 0: that
-  pixel's coverage 0.16 is lost). hamacher with a fixed p > ~1e30 overflows its generator in float32
+  large p (p = 50: x = 0.17 gives 3e-39, subnormal; Dr.Jit's kernels may flush it to 0, and the
+  torch backend zeroes a subnormal sum too, where its gradient would be NaN: in both, that
+  pixel's coverage 0.17 is lost). hamacher with a fixed p > ~1e30 overflows its generator in float32
   (alpha 1 where the coverage is 0.9997). hamacher with a fixed 0 < p < ~1e-19 (float32) or 1e-154
   (float64) renders right, but Dr.Jit's derivative of the inverse w/(w + p·u) is −a/b² with b ~ p,
   which underflows: its gradients are wrong (torch's are right). Use float64 beyond those.

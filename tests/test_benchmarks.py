@@ -118,8 +118,12 @@ def test_backends_table_is_the_committed_json():
     def first(name):
         return json.loads((res / name).read_text())["results"][0]
     torch_, compiled, drjit, large = (first(f"render_{k}.json") for k in ("torch", "torch_compiled", "drjit", "drjit_large"))
-    commit = json.loads((res / "render_drjit.json").read_text())["machine"]["git_commit"]
-    assert f"measured at {commit}" in table
+    # every file the table quotes, not only one: "measured at" names a single commit for all
+    commits = {json.loads((res / f).read_text())["machine"]["git_commit"]
+               for f in ("render_torch.json", "render_torch_compiled.json", "render_drjit.json",
+                         "render_drjit_large.json", "step_torch.json")}
+    assert len(commits) == 1, commits
+    assert f"measured at {commits.pop()}" in table
 
     def ms(r):
         return f"{r['forward']['median_ms']:.1f} / {r['forward_backward']['median_ms']:.1f} ms"

@@ -444,8 +444,10 @@ def _two_small_faces():
 def test_softmax_with_tiny_coverages_matches_finite_differences():
     """eps = 0 and τ = 1e-3: far from both faces every coverage is tiny (~1e-170) and the background
     weight underflows, so the softmax denominator was ~1e-170 and Dr.Jit's −a/b² derivative of the
-    ratio overflowed: dτ NaN, vertex gradients 40 % off (-3.01 against -5.00), no error. Both
-    backends now keep the denominator >= 1 (m includes γ·ln p). Central differences with a 1e-6
+    ratio overflowed: dτ NaN, vertex gradients 40 % off (-3.01 against -5.00), no error. The
+    denominator is still that small (m = max(ε, z̃)); Dr.Jit now differentiates the ratio q = a/den
+    as (da − q·dden)/den, which never squares den (torch's own division backward already did the
+    same). Central differences with a 1e-6
     relative step; the tolerance 1e-5 relative is ~100x their round-off here."""
     verts, faces, cols = _two_small_faces()
     cam = gendr.PerspectiveCamera(eye=(0.0, 0.0, 3.0), fov_y=40.0)
