@@ -37,7 +37,7 @@ def validate_parser() -> argparse.ArgumentParser:
                     "Mitsuba 3 pixel by pixel, and AD gradients vs float64 central finite differences. Writes "
                     "OUTDIR/report.html (self-contained) and OUTDIR/summary.json; exit status 1 if a check fails.",
         epilog="examples:\n"
-               "  gendr validate --quick -o validation_report      # < 2 minutes\n"
+               "  gendr validate --quick -o validation_report      # < 2 minutes (the first run on a machine ~6: Dr.Jit compiles)\n"
                "  gendr validate --full -o full_report --instances all --jobs 2\n"
                "  gendr validate --instances 0,271 --scenes cube,torus --backends torch -o r")
     p.add_argument("-o", "--output", default="validation_report", metavar="OUTDIR", help="directory to write into (default: %(default)s)")
