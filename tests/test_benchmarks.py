@@ -115,13 +115,12 @@ def test_backends_table_is_the_committed_json():
     doc = (BENCH.parent / "docs" / "backends.md").read_text()
     table = "\n".join(line for line in doc.splitlines() if line.startswith("| "))
 
-    def first(name):
-        return json.loads((res / name).read_text())["results"][0]
-    torch_, compiled, drjit, large = (first(f"render_{k}.json") for k in ("torch", "torch_compiled", "drjit", "drjit_large"))
+    quoted = {k: json.loads((res / f"{k}.json").read_text())
+              for k in ("render_torch", "render_torch_compiled", "render_drjit", "render_drjit_large", "step_torch")}
+    torch_, compiled, drjit, large = (quoted[f"render_{k}"]["results"][0]
+                                      for k in ("torch", "torch_compiled", "drjit", "drjit_large"))
     # every file the table quotes, not only one: "measured at" names a single commit for all
-    commits = {json.loads((res / f).read_text())["machine"]["git_commit"]
-               for f in ("render_torch.json", "render_torch_compiled.json", "render_drjit.json",
-                         "render_drjit_large.json", "step_torch.json")}
+    commits = {q["machine"]["git_commit"] for q in quoted.values()}
     assert len(commits) == 1, commits
     assert f"measured at {commits.pop()}" in table
 
@@ -135,6 +134,6 @@ def test_backends_table_is_the_committed_json():
             f"{large['forward']['peak_extra_mb']:.0f} / {large['forward_backward']['peak_extra_mb']:.0f} MB") in table
     assert (f"{drjit['forward']['first_call_cold_ms']:.0f} ms (fwd) / "
             f"{drjit['forward_backward']['first_call_cold_ms']:.0f} ms (fwd+bwd)") in table
-    steps = {r["compile"]: r for r in json.loads((res / "step_torch.json").read_text())["results"] if r["case"] == "shape"}
+    steps = {r["compile"]: r for r in quoted["step_torch"]["results"] if r["case"] == "shape"}
     assert (f"takes {steps[True]['first_step_ms'] / 1000:.1f} s with an empty Inductor cache, later ones "
             f"{steps[True]['median_ms']:.1f} ms against {steps[False]['median_ms']:.1f} ms eager") in table
