@@ -14,11 +14,10 @@ from __future__ import annotations
 import pytest
 
 pytest.importorskip("drjit", reason="the Dr.Jit backend needs drjit (pip install gendr[drjit])")
-torch = pytest.importorskip("torch")
+pytest.importorskip("torch")
 
-import gendr  # noqa: E402
-from test_gradcheck import (ATOL, CAMERAS, DISTS, EPS, FACES, LIGHT, RTOL, TCNS, VERTS, H, W, _id,  # noqa: E402
-                            pick_tau, t, verts)
+from test_gradcheck import CAMERAS, DISTS, TCNS, _id  # noqa: E402
+from test_gradcheck import check as check_backend  # noqa: E402
 
 #: Dr.Jit's reverse pass accumulates gradients with parallel atomic scatter-adds, whose summation
 #: order (hence float64 rounding) depends on thread scheduling: repeated backward calls may differ at
@@ -28,22 +27,8 @@ NONDET_TOL = 1e-10
 ROTATE = [("probabilistic", {}), ("max", {}), ("yager", {"p": 3.0}), ("frank", {"p": 10.0}), ("dombi", {"p": 2.0})]
 
 
-def check(dist, tcn, camera_kind="perspective", blend=None, fast_mode=True, colors=False):
-    dist = gendr.distribution(dist[0], **dist[1])
-    tcn = gendr.tconorm(tcn[0], **tcn[1])
-    build, cam0 = CAMERAS[camera_kind]
-    cam_params = [t(c) for c in cam0]
-    tau0 = pick_tau(dist, tcn, build(*[c.detach() for c in cam_params]), rgb=blend is not None)
-    vcol = torch.rand(len(VERTS), 3, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
-
-    def f(v, tau, *cp):
-        r = gendr.Renderer(dist, tcn, tau=tau, image_size=(H, W), eps=0.0, blend=blend, gamma=0.1,
-                           light_direction=LIGHT, backend="drjit")
-        out = r.render(v, FACES, build(*cp), **({"vertex_colors": vcol} if colors else {}))
-        return out if blend is not None else out[..., 3]
-
-    inputs = (verts(), t(tau0), *cam_params)
-    assert torch.autograd.gradcheck(f, inputs, eps=EPS, atol=ATOL, rtol=RTOL, fast_mode=fast_mode, nondet_tol=NONDET_TOL)
+def check(dist, tcn, camera_kind="perspective", **kw):
+    check_backend(dist, tcn, camera_kind, backend="drjit", nondet_tol=NONDET_TOL, **kw)
 
 
 @pytest.mark.parametrize("i", range(len(DISTS)), ids=[_id(d) for d in DISTS])

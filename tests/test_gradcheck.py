@@ -158,7 +158,8 @@ def pick_tau(dist, tcn, camera, *, rgb=False):
     pytest.fail(f"fixture: every candidate τ puts a pixel near a kink: {reasons}")
 
 
-def check(dist, tcn, camera_kind="perspective", blend=None, fast_mode=True, colors=False):
+def check(dist, tcn, camera_kind="perspective", blend=None, fast_mode=True, colors=False, backend="torch",
+          nondet_tol=0.0):
     dist = gendr.distribution(dist[0], **dist[1]) if isinstance(dist, tuple) else gendr.distribution(dist)
     tcn = gendr.tconorm(tcn[0], **tcn[1]) if isinstance(tcn, tuple) else gendr.tconorm(tcn)
     build, cam0 = CAMERAS[camera_kind]
@@ -168,12 +169,13 @@ def check(dist, tcn, camera_kind="perspective", blend=None, fast_mode=True, colo
 
     def f(v, tau, *cp):
         r = gendr.Renderer(dist, tcn, tau=tau, image_size=(H, W), eps=0.0, blend=blend, gamma=0.1,
-                           light_direction=LIGHT)
+                           light_direction=LIGHT, backend=backend)
         out = r.render(v, FACES, build(*cp), **({"vertex_colors": vcol} if colors else {}))
         return out if blend is not None else out[..., 3]
 
     inputs = (verts(), t(tau0), *cam_params)
-    assert torch.autograd.gradcheck(f, inputs, eps=EPS, atol=ATOL, rtol=RTOL, fast_mode=fast_mode)
+    assert torch.autograd.gradcheck(f, inputs, eps=EPS, atol=ATOL, rtol=RTOL, fast_mode=fast_mode,
+                                    nondet_tol=nondet_tol)
 
 
 def test_scene_is_not_degenerate():
